@@ -1,0 +1,39 @@
+# shoha: two commands from a fresh clone (README "Quickstart").
+#   make demo   create .venv, install, run the main job on the built-in mini scene
+#   make test   install the test extras and run the tests
+PYTHON ?= $(shell command -v python3.11 || command -v python3)
+VENV   := .venv
+BIN    := $(VENV)/bin
+OUT    := out
+
+.PHONY: demo test test-slow bench lint clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-test: pyproject.toml $(VENV)/.installed
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $@
+
+demo: $(VENV)/.installed
+	mkdir -p $(OUT)
+	$(BIN)/shoha scene info mini
+	$(BIN)/shoha check scenes/mini-25.json
+	$(BIN)/shoha porosity scenes/mini-25.json --method voxel-any --divisions 100
+
+test: $(VENV)/.installed-test
+	$(BIN)/python -m pytest -q
+
+test-slow: $(VENV)/.installed-test
+	$(BIN)/python -m pytest -q -m slow
+
+lint: $(VENV)/.installed-test
+	$(BIN)/ruff check geometry settle optimizer benchmarks tests
+
+clean:
+	rm -rf $(VENV) $(OUT) build *.egg-info

@@ -1,0 +1,72 @@
+"""The checks of a layout: counts, tolerance, collisions and porosity.
+
+These are the simulator's UI counters (Table III of the reference paper:
+block requirement, remaining blocks, out-of-tolerance blocks, porosity),
+computed exactly. ``shoha check``, the scorer and the optimizer all use this.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from .blocks import Block
+from .collision import Collision, collisions
+from .porosity import porosity
+from .pose import Pose
+from .scene import Scene
+from .tolerance import out_of_tolerance
+
+
+@dataclass
+class CheckReport:
+    """What ``shoha check`` reports (CONTRACT.md keys via :meth:`to_dict`)."""
+
+    blocks: int
+    required_blocks: int
+    out_of_tolerance: list[tuple[int, float]] = field(default_factory=list)
+    collisions: list[Collision] = field(default_factory=list)
+    porosity_percent: float = 100.0
+    seconds: float = 0.0
+
+    @property
+    def remaining_blocks(self) -> int:
+        return max(0, self.required_blocks - self.blocks)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "blocks": self.blocks,
+            "required_blocks": self.required_blocks,
+            "remaining_blocks": self.remaining_blocks,
+            "out_of_tolerance": [{"id": k, "outside_volume_m3": v} for k, v in self.out_of_tolerance],
+            "collisions": [{"a": c.a, "b": c.b, "depth_m": c.depth} for c in self.collisions],
+            "porosity_percent": self.porosity_percent,
+            "seconds": self.seconds,
+        }
+
+    def summary(self) -> str:
+        lines = [
+            f"blocks {self.blocks} of {self.required_blocks} required ({self.remaining_blocks} remaining)",
+            f"porosity {self.porosity_percent:.2f}% (exact)",
+            f"out of tolerance: {len(self.out_of_tolerance)}"
+            + "".join(f"\n  block {k}: {v:.4f} m3 outside" for k, v in self.out_of_tolerance),
+            f"collisions: {len(self.collisions)}"
+            + "".join(f"\n  blocks {c.a} and {c.b}: {c.depth * 1000:.1f} mm deep" for c in self.collisions),
+        ]
+        return "\n".join(lines)
+
+
+def check_layout(scene: Scene, placed: Sequence[tuple[int, Block, Pose]]) -> CheckReport:
+    """Run every check on a layout."""
+    start = time.perf_counter()
+    report = CheckReport(
+        blocks=len(placed),
+        required_blocks=scene.required_blocks,
+        out_of_tolerance=out_of_tolerance(list(placed), scene.tolerance),
+        collisions=collisions(placed),
+        porosity_percent=porosity(scene, placed, "exact").percent,
+    )
+    report.seconds = time.perf_counter() - start
+    return report

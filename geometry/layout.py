@@ -1,0 +1,204 @@
+"""Layouts: which blocks stand where, in installation order.
+
+The file format is ``shoha-layout/1`` (CONTRACT.md, "Layout file")::
+
+    {"format": "shoha-layout/1",
+     "scene": "mini",
+     "blocks": [{"id": 0, "type": "shake-4t",
+                 "position": [0.0, 1.2, 0.9], "quaternion": [1.0, 0.0, 0.0, 0.0]}]}
+
+Reading validates everything at this boundary, and the rest of shoha trusts
+the result. Unknown top-level keys are kept and written back; unknown block
+keys are errors. Floats are written with Python's shortest round-trip repr,
+so writing what was read is lossless.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .blocks import Block, get_block
+from .constants import MAX_BLOCKS, tol
+from .errors import InputError
+from .fileio import atomic_write, read_json
+from .pose import Pose
+from .scene import Scene, load_scene
+
+FORMAT = "shoha-layout/1"
+
+#: Coordinates beyond this many metres from the origin are not a breakwater.
+MAX_COORDINATE = 1e6
+
+_BLOCK_KEYS = ("id", "type", "position", "quaternion")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """One block of a layout.
+
+    Attributes
+    ----------
+    id : int
+        Non-negative, unique within the layout.
+    type : str
+        Block type name, as written in the file.
+    pose : Pose
+        Block frame to world frame.
+    """
+
+    id: int
+    type: str
+    pose: Pose
+
+
+@dataclass
+class Layout:
+    """A layout: a scene reference and blocks in installation order.
+
+    Attributes
+    ----------
+    scene : str
+        Built-in scene name or a scene file path (relative to ``base_dir``).
+    blocks : list of Placement
+    extra : dict
+        Unknown top-level keys of the file, kept for writing back.
+    base_dir : str or None
+        Folder of the file it was read from; relative paths resolve here.
+    """
+
+    scene: str
+    blocks: list[Placement] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)
+    base_dir: str | None = None
+
+    def load_scene(self, override: str | None = None) -> Scene:
+        """The layout's scene, or ``override`` (a ``--scene`` option) when given."""
+        return load_scene(override if override is not None else self.scene, self.base_dir)
+
+    def placed(self) -> list[tuple[int, Block, Pose]]:
+        """``(id, Block, Pose)`` for every block, in installation order."""
+        return [(p.id, get_block(p.type, self.base_dir), p.pose) for p in self.blocks]
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"format": FORMAT, "scene": self.scene}
+        out.update(self.extra)
+        out["blocks"] = [
+            {
+                "id": p.id,
+                "type": p.type,
+                "position": [float(v) for v in p.pose.position],
+                "quaternion": [float(v) for v in p.pose.quaternion],
+            }
+            for p in self.blocks
+        ]
+        return out
+
+    def dumps(self) -> str:
+        """The layout as ``shoha-layout/1`` JSON text, one block per line."""
+        d = self.to_dict()
+        blocks = d.pop("blocks")
+        head = json.dumps(d, allow_nan=False)[:-1]
+        lines = ",\n".join("  " + json.dumps(b, allow_nan=False) for b in blocks)
+        sep = ", " if len(d) else ""
+        return f'{head}{sep}"blocks": [\n{lines}\n]}}\n' if blocks else f'{head}{sep}"blocks": []}}\n'
+
+
+def read_layout(path: str | os.PathLike) -> Layout:
+    """Read and validate a ``shoha-layout/1`` file.
+
+    Raises
+    ------
+    InputError
+        Naming the file, and the block where there is one, for: a missing or
+        unreadable file, malformed JSON, NaN or infinite numbers, a wrong
+        format tag, wrong types, a quaternion whose norm is not within 1e-6 of
+        1, an unknown block type or block key, duplicate ids, or more than
+        ``MAX_BLOCKS`` blocks.
+    """
+    path = Path(path)
+    data = read_json(path)
+    return layout_from_dict(data, str(path), str(path.resolve().parent))
+
+
+def layout_from_dict(data: Any, source: str, base_dir: str | None) -> Layout:
+    """Validate parsed JSON as a layout; ``source`` names it in messages."""
+    if not isinstance(data, dict):
+        raise InputError(f"{source}: a layout must be a JSON object")
+    fmt = data.get("format")
+    if fmt != FORMAT:
+        raise InputError(f"{source}: format must be {FORMAT!r}, not {fmt!r}")
+    scene = data.get("scene")
+    if not isinstance(scene, str) or not scene:
+        raise InputError(f"{source}: scene must be a scene name or path")
+    blocks = data.get("blocks")
+    if not isinstance(blocks, list):
+        raise InputError(f"{source}: blocks must be a list")
+    if len(blocks) > MAX_BLOCKS:
+        raise InputError(f"{source}: {len(blocks)} blocks is more than {MAX_BLOCKS}")
+    extra = {k: v for k, v in data.items() if k not in ("format", "scene", "blocks")}
+    seen: set[int] = set()
+    placements = []
+    for index, raw in enumerate(blocks):
+        p = _placement(raw, index, source, base_dir)
+        if p.id in seen:
+            raise InputError(f"{source}: block {p.id}: duplicate id")
+        seen.add(p.id)
+        placements.append(p)
+    return Layout(scene, placements, extra, base_dir)
+
+
+def _placement(raw: Any, index: int, source: str, base_dir: str | None) -> Placement:
+    where = f"{source}: block #{index}"
+    if not isinstance(raw, dict):
+        raise InputError(f"{where}: must be a JSON object")
+    unknown = [k for k in raw if k not in _BLOCK_KEYS]
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(_BLOCK_KEYS)})")
+    missing = [k for k in _BLOCK_KEYS if k not in raw]
+    if missing:
+        raise InputError(f"{where}: missing {missing[0]!r}")
+    key = raw["id"]
+    if not isinstance(key, int) or isinstance(key, bool) or key < 0 or key > 2**53:
+        raise InputError(f"{where}: id must be a non-negative integer, not {key!r}")
+    where = f"{source}: block {key}"
+    kind = raw["type"]
+    if not isinstance(kind, str):
+        raise InputError(f"{where}: type must be a string")
+    try:
+        get_block(kind, base_dir)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+    position = _vector(raw["position"], 3, "position", where)
+    if np.abs(position).max() > MAX_COORDINATE:
+        raise InputError(f"{where}: position is more than {MAX_COORDINATE:g} m from the origin")
+    q = _vector(raw["quaternion"], 4, "quaternion", where)
+    return Placement(key, kind, Pose(position, normalised_quaternion(q, where)))
+
+
+def normalised_quaternion(q: np.ndarray, where: str) -> np.ndarray:
+    """``q`` normalised if its norm is within ``tol.quaternion_norm`` of 1, else an error."""
+    norm = float(np.linalg.norm(q))
+    if abs(norm - 1.0) > tol.quaternion_norm:
+        raise InputError(f"{where}: quaternion norm {norm:.6g} is not 1")
+    return q
+
+
+def _vector(value: Any, n: int, name: str, where: str) -> np.ndarray:
+    if (not isinstance(value, list) or len(value) != n
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise InputError(f"{where}: {name} must be a list of {n} numbers")
+    if not all(math.isfinite(v) for v in value):
+        raise InputError(f"{where}: {name} has a non-finite number")
+    return np.array(value, dtype=float)
+
+
+def write_layout(layout: Layout, path: str | os.PathLike) -> None:
+    """Write a layout atomically (whole, or not at all)."""
+    atomic_write(path, layout.dumps())

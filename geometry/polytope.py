@@ -1,0 +1,184 @@
+"""Convex polytopes: the pieces blocks are made of, and the prisms of a scene.
+
+A convex polytope is kept in both of its forms: its vertices (for hulls,
+collision shapes and bounding boxes) and its half-spaces ``n . p <= d`` (for
+containment and for the vertical column intervals the voxel methods use).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
+
+from .constants import tol
+from .errors import InputError
+
+
+@dataclass(frozen=True, eq=False)
+class ConvexPolytope:
+    """A bounded convex polytope.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float, metres
+        Hull vertices, in whatever frame the polytope was built in.
+    faces : (m, 3) int
+        Triangles of the hull surface, counter-clockwise seen from outside.
+    normals : (k, 3) float
+        Unit outward normals of its distinct facet planes.
+    offsets : (k,) float, metres
+        Plane offsets: a point ``p`` is inside when ``normals @ p <= offsets``.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+    offsets: np.ndarray
+
+    @classmethod
+    def from_points(cls, points: np.ndarray, name: str = "polytope") -> ConvexPolytope:
+        """Convex hull of ``(n, 3)`` points.
+
+        Raises
+        ------
+        InputError
+            If the points span no volume (fewer than 4 points off one plane).
+        """
+        points = np.asarray(points, dtype=float)
+        if points.ndim != 2 or points.shape[1] != 3 or not np.isfinite(points).all():
+            raise InputError(f"{name}: points must be a finite (n, 3) array")
+        try:
+            hull = ConvexHull(points)
+        except QhullError as exc:
+            raise InputError(f"{name}: points span no volume ({len(points)} points)") from exc
+        used = np.unique(hull.simplices)
+        remap = np.full(len(points), -1)
+        remap[used] = np.arange(len(used))
+        vertices = points[used]
+        faces = remap[hull.simplices]
+        # qhull does not orient simplices; flip those whose normal points inward.
+        tri = vertices[faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        flip = np.einsum("ij,ij->i", n, hull.equations[:, :3]) < 0
+        faces[flip] = faces[flip][:, ::-1]
+        normals, offsets = _distinct_planes(hull.equations, scale=np.ptp(points, axis=0).max())
+        return cls(vertices, faces, normals, offsets)
+
+    @classmethod
+    def from_halfspaces(
+        cls, normals: np.ndarray, offsets: np.ndarray, interior: np.ndarray
+    ) -> ConvexPolytope:
+        """Intersection of half-spaces ``normals @ p <= offsets``.
+
+        ``interior`` is a point strictly inside.
+        """
+        normals = np.asarray(normals, dtype=float)
+        offsets = np.asarray(offsets, dtype=float)
+        hs = np.hstack([normals, -offsets[:, None]])
+        points = HalfspaceIntersection(hs, np.asarray(interior, dtype=float)).intersections
+        return cls.from_points(points)
+
+    # --- measures -----------------------------------------------------------
+
+    @cached_property
+    def volume(self) -> float:
+        """Volume in cubic metres (divergence theorem over the triangles)."""
+        tri = self.vertices[self.faces]
+        return float(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum() / 6)
+
+    @cached_property
+    def aabb(self) -> np.ndarray:
+        """(2, 3) float: lower and upper corner of the axis-aligned bounding box."""
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+    @cached_property
+    def edges(self) -> np.ndarray:
+        """(e, 2) int: unique edges of the triangulated hull."""
+        e = np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]])
+        return np.unique(np.sort(e, axis=1), axis=0)
+
+    # --- maps and tests -------------------------------------------------------
+
+    def transformed(self, rotation: np.ndarray, translation: np.ndarray) -> ConvexPolytope:
+        """The polytope moved by ``p -> rotation @ p + translation``."""
+        normals = self.normals @ rotation.T
+        return ConvexPolytope(
+            self.vertices @ rotation.T + translation,
+            self.faces,
+            normals,
+            self.offsets + normals @ translation,
+        )
+
+    def contains(self, points: np.ndarray, margin: float = tol.distance) -> np.ndarray:
+        """Which ``(n, 3)`` points lie inside, allowing ``margin`` metres outside."""
+        return np.all(np.asarray(points) @ self.normals.T <= self.offsets + margin, axis=1)
+
+    def minkowski_box(self, half: np.ndarray) -> ConvexPolytope:
+        """Minkowski sum with the axis-aligned box ``[-half, half]``.
+
+        An axis-aligned box centred at ``c`` touches this polytope exactly when
+        ``c`` lies in the sum; the ``voxel-any`` porosity rule relies on it.
+        """
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
+        pts = (self.vertices[:, None, :] + corners[None] * np.asarray(half)).reshape(-1, 3)
+        return ConvexPolytope.from_points(pts)
+
+    def eroded_box_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Half-spaces of the set of centres whose box ``[-half, half]`` fits inside.
+
+        For a convex polytope this is exact: each plane moves in by the box's
+        support along its normal, ``sum_i half_i |n_i|``.
+        """
+        return self.normals, self.offsets - np.abs(self.normals) @ np.asarray(half)
+
+
+def column_intervals(
+    normals: np.ndarray, offsets: np.ndarray, xy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where vertical lines cross a convex polytope.
+
+    Parameters
+    ----------
+    normals : (k, 3) float
+        Plane normals; a point is inside when ``normals @ p <= offsets``.
+    offsets : (k,) float, metres
+    xy : (c, 2) float, metres
+        Horizontal positions of the vertical lines (columns).
+
+    Returns
+    -------
+    lo, hi : (c,) float, metres
+        Each line is inside for ``lo <= z <= hi``; ``lo > hi`` where it misses.
+
+    Notes
+    -----
+    Costs ``O(c k)``: one pass over the planes for all columns, against
+    ``O(c k nz)`` for testing every voxel centre of a column.
+    """
+    rhs = offsets[None, :] - xy @ normals[:, :2].T  # (c, k): nz * z <= rhs
+    nz = normals[:, 2]
+    up = nz > tol.distance
+    down = nz < -tol.distance
+    flat = ~(up | down)
+    hi = np.min(rhs[:, up] / nz[up], axis=1, initial=np.inf)
+    lo = np.max(rhs[:, down] / nz[down], axis=1, initial=-np.inf)
+    if flat.any():
+        outside = np.any(rhs[:, flat] < -tol.distance, axis=1)
+        lo = np.where(outside, np.inf, lo)
+        hi = np.where(outside, -np.inf, hi)
+    return lo, hi
+
+
+def _distinct_planes(equations: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Merge qhull's per-triangle equations ``[n, -d]`` into distinct planes."""
+    normals = equations[:, :3]
+    offsets = -equations[:, 3]
+    # Round in units of 1e-9 of the part's size: coplanar triangles of one facet
+    # agree to ~1e-15, distinct facets differ by far more.
+    key = np.round(np.hstack([normals, offsets[:, None] / max(scale, 1e-12)]) * 1e9)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    return normals[first].copy(), offsets[first].copy()

@@ -1,0 +1,186 @@
+"""Poses: where a block is and how it is turned.
+
+A pose maps the block frame to the world frame (CONTRACT.md, "Units and
+frames")::
+
+    p_world = R(quaternion) @ p_block + position
+
+Quaternions are scalar-first ``[w, x, y, z]`` here, in files and in MuJoCo.
+This is the one module where a block's pose becomes world coordinates.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from .constants import tol
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a unit quaternion.
+
+    Parameters
+    ----------
+    q : (4,) or (n, 4) float
+        Unit quaternion(s), scalar first ``[w, x, y, z]``.
+
+    Returns
+    -------
+    (3, 3) or (n, 3, 3) float
+    """
+    q = np.asarray(q, dtype=float)
+    if q.ndim == 1:
+        # One quaternion: plain floats are ~10x faster than the array path.
+        w, x, y, z = (float(v) for v in q)
+        return np.array([
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ])
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    m = np.stack(
+        [
+            1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+        ],
+        axis=-1,
+    )
+    return m.reshape(q.shape[:-1] + (3, 3))
+
+
+def matrix_to_quat(m: np.ndarray) -> np.ndarray:
+    """Unit quaternion ``[w, x, y, z]`` of a rotation matrix, with ``w >= 0``."""
+    m = np.asarray(m, dtype=float)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    # Shepperd's method: pick the largest diagonal term for stability.
+    if tr > 0:
+        s = np.sqrt(tr + 1.0) * 2
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    q = np.array(q)
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` of scalar-first quaternions (apply b, then a)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ]
+    )
+
+
+def axis_angle_quat(axis: np.ndarray, angle: float) -> np.ndarray:
+    """Quaternion ``[w, x, y, z]`` of a rotation by ``angle`` radians about ``axis``."""
+    axis = np.asarray(axis, dtype=float)
+    axis = axis / np.linalg.norm(axis)
+    return np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+
+
+def rotation_angle(q: np.ndarray) -> float:
+    """Angle in radians, in [0, pi], of the rotation a unit quaternion describes."""
+    return float(2 * np.arccos(np.clip(abs(q[0]), 0.0, 1.0)))
+
+
+@dataclass(frozen=True, eq=False)
+class Pose:
+    """A rigid placement of a block frame in the world frame.
+
+    Attributes
+    ----------
+    position : (3,) float, metres, world frame
+        Where the block frame's origin (the block's centroid) lies.
+    quaternion : (4,) float, unit, scalar first ``[w, x, y, z]``
+        The block frame's orientation.
+    """
+
+    position: np.ndarray
+    quaternion: np.ndarray
+
+    def __post_init__(self) -> None:
+        p = np.array(self.position, dtype=float).reshape(3)
+        q = np.array(self.quaternion, dtype=float).reshape(4)
+        norm = np.linalg.norm(q)
+        # Leave a quaternion that is unit to float precision untouched, so that
+        # reading and writing a layout is lossless (dividing by a norm of
+        # 1 +- 1 ulp would change its last bits on every round trip).
+        if abs(norm - 1.0) > 4 * np.finfo(float).eps:
+            q = q / norm
+        p.flags.writeable = False
+        q.flags.writeable = False
+        object.__setattr__(self, "position", p)
+        object.__setattr__(self, "quaternion", q)
+
+    @classmethod
+    def identity(cls) -> Pose:
+        return cls(np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+
+    @classmethod
+    def from_matrix(cls, m: np.ndarray) -> Pose:
+        """Pose of a 4x4 homogeneous transform."""
+        m = np.asarray(m, dtype=float)
+        return cls(m[:3, 3], matrix_to_quat(m[:3, :3]))
+
+    @cached_property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) float rotation matrix, block frame to world frame (read-only)."""
+        m = quat_to_matrix(self.quaternion)
+        m.flags.writeable = False
+        return m
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """(4, 4) float homogeneous transform, block frame to world frame."""
+        m = np.eye(4)
+        m[:3, :3] = self.rotation
+        m[:3, 3] = self.position
+        return m
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Map ``(n, 3)`` points from the block frame to the world frame."""
+        return np.asarray(points, dtype=float) @ self.rotation.T + self.position
+
+    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
+        """Map ``(n, 3)`` points from the world frame to the block frame."""
+        return (np.asarray(points, dtype=float) - self.position) @ self.rotation
+
+    def compose(self, inner: Pose) -> Pose:
+        """The pose ``self ∘ inner``: first ``inner``, then ``self``."""
+        return Pose(
+            self.apply(inner.position[None])[0],
+            quat_multiply(self.quaternion, inner.quaternion),
+        )
+
+    def translated(self, offset: np.ndarray) -> Pose:
+        return Pose(self.position + np.asarray(offset, dtype=float), self.quaternion)
+
+    def close_to(self, other: Pose, atol: float = tol.distance) -> bool:
+        """Same placement within ``atol`` (q and -q are the same rotation)."""
+        dq = min(
+            np.abs(self.quaternion - other.quaternion).max(),
+            np.abs(self.quaternion + other.quaternion).max(),
+        )
+        return bool(np.abs(self.position - other.position).max() <= atol and dq <= atol)
+
+    def __repr__(self) -> str:
+        p = ", ".join(f"{v:.4g}" for v in self.position)
+        q = ", ".join(f"{v:.4g}" for v in self.quaternion)
+        return f"Pose(position=[{p}], quaternion=[{q}])"

@@ -1,0 +1,322 @@
+"""The breakwater scene: design prism, tolerance zone, crest, foundation.
+
+Scenes load from TOML. The built-in ones live in ``geometry/scenes/`` and are
+named by their file stem (``mini``). A scene file looks like this::
+
+    name = "mini"
+    kind = "3d"                      # or "section": blocks extruded along y, 2D physics
+    block = "shake-4t"
+    target_porosity_percent = 56.0
+    # required_blocks = 75           # default: ceil((1 - target) V_B / V_block)
+
+    [design]
+    crest_width_m = 4.0
+    height_m = 3.0
+    slope_rise_run = [3.0, 4.0]      # 3 up for 4 across
+    length_m = 12.220833333333333
+
+    [tolerance]                      # optional; each defaults to H/3 (Table II)
+    crest_rise_m = 0.5533
+
+    [foundation]                     # optional; flat by default
+    kind = "rough"                   # a rubble underlayer, as a height field
+    amplitude_m = 0.15
+    cell_m = 0.5
+    seed = 0
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .blocks import Block, get_block
+from .errors import InputError
+from .tolerance import Allowance, TrapezoidalPrism, design_prism, tolerance_prism
+
+SCENE_KINDS = ("3d", "section")
+
+
+@dataclass(frozen=True)
+class Foundation:
+    """The top of the foundation: flat at z = 0, or a rough rubble underlayer.
+
+    A rough underlayer is a height field: heights drawn uniformly from
+    ``[-amplitude, amplitude]`` on a square grid of spacing ``cell`` and
+    interpolated bilinearly, seeded so the same scene is the same ground.
+    """
+
+    kind: str = "flat"
+    amplitude: float = 0.0
+    cell: float = 0.5
+    seed: int = 0
+    #: (xmin, xmax, ymin, ymax), metres: the area the height field covers.
+    extent: tuple[float, float, float, float] = (-1.0, 1.0, -1.0, 1.0)
+
+    @property
+    def lowest(self) -> float:
+        """Lowest point of the foundation top, m."""
+        return -self.amplitude if self.kind == "rough" else 0.0
+
+    @cached_property
+    def grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Height field: x nodes (nx,), y nodes (ny,), heights (nx, ny), metres."""
+        x0, x1, y0, y1 = self.extent
+        xs = np.arange(x0, x1 + self.cell, self.cell)
+        ys = np.arange(y0, y1 + self.cell, self.cell)
+        if self.kind != "rough":
+            return xs, ys, np.zeros((len(xs), len(ys)))
+        rng = np.random.default_rng(self.seed)
+        return xs, ys, rng.uniform(-self.amplitude, self.amplitude, (len(xs), len(ys)))
+
+    def height_at(self, xy: np.ndarray) -> np.ndarray:
+        """Foundation top height under ``(n, 2)`` points, bilinear, metres."""
+        xy = np.atleast_2d(xy)
+        if self.kind != "rough":
+            return np.zeros(len(xy))
+        xs, ys, h = self.grid
+        fx = np.clip((xy[:, 0] - xs[0]) / self.cell, 0, len(xs) - 1.000001)
+        fy = np.clip((xy[:, 1] - ys[0]) / self.cell, 0, len(ys) - 1.000001)
+        i, j = fx.astype(int), fy.astype(int)
+        tx, ty = fx - i, fy - j
+        return (
+            h[i, j] * (1 - tx) * (1 - ty) + h[i + 1, j] * tx * (1 - ty)
+            + h[i, j + 1] * (1 - tx) * ty + h[i + 1, j + 1] * tx * ty
+        )
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A breakwater to fill with blocks.
+
+    Attributes
+    ----------
+    name : str
+    kind : str
+        ``"3d"``, or ``"section"``: a slice whose blocks are prisms extruded
+        along y and move only in x-z (settled in 2D).
+    block_type : str
+        The block type name, as in layout files.
+    crest_width, height, slope, length : float
+        The design parameters, metres; ``slope`` is run per unit rise.
+    target_porosity : float, percent
+    required_blocks : int
+    allowance : Allowance
+        Table II's allowances, metres.
+    foundation : Foundation
+    base_dir : str or None
+        Folder that relative ``mesh:`` block paths resolve against.
+    """
+
+    name: str
+    kind: str
+    block_type: str
+    crest_width: float
+    height: float
+    slope: float
+    length: float
+    target_porosity: float
+    required_blocks: int
+    allowance: Allowance
+    foundation: Foundation = field(default_factory=Foundation)
+    base_dir: str | None = None
+
+    @property
+    def block(self) -> Block:
+        return get_block(self.block_type, self.base_dir)
+
+    @cached_property
+    def design(self) -> TrapezoidalPrism:
+        return design_prism(self.crest_width, self.height, self.slope, self.length)
+
+    @cached_property
+    def tolerance(self) -> TrapezoidalPrism:
+        return tolerance_prism(self.design, self.allowance, min(0.0, self.foundation.lowest))
+
+    @property
+    def design_volume(self) -> float:
+        """V_B of eq. (1), m^3."""
+        return self.design.volume
+
+    @property
+    def crest(self) -> np.ndarray:
+        """(4, 3) float: corners of the crest top (天端), the face cranes place against."""
+        w = self.crest_width / 2
+        return np.array([[-w, 0, self.height], [w, 0, self.height], [w, self.length, self.height],
+                         [-w, self.length, self.height]])
+
+
+# --- loading ---------------------------------------------------------------------
+
+
+def builtin_scenes() -> list[str]:
+    """Names of the built-in scenes."""
+    folder = resources.files("geometry") / "scenes"
+    return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = None) -> Scene:
+    """A scene by built-in name, or from a TOML file.
+
+    A relative path is resolved against ``base_dir`` (the layout file's
+    folder, CONTRACT.md), then the working directory.
+
+    Raises
+    ------
+    InputError
+        If no such scene exists or its file is invalid.
+    """
+    spec = str(spec)
+    if spec in builtin_scenes():
+        text = (resources.files("geometry") / "scenes" / f"{spec}.toml").read_text()
+        return parse_scene(text, source=spec, base_dir=None)
+    path = Path(spec).expanduser()
+    if not path.is_absolute() and base_dir is not None and (Path(base_dir) / path).is_file():
+        path = Path(base_dir) / path
+    if not path.is_file():
+        names = ", ".join(builtin_scenes())
+        raise InputError(f"{spec}: no such scene (built-in scenes: {names}; or a .toml file)")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read scene ({exc})") from None
+    return parse_scene(text, source=str(path), base_dir=str(path.resolve().parent))
+
+
+_TOP_KEYS = {"name", "kind", "block", "target_porosity_percent", "required_blocks",
+             "design", "tolerance", "foundation"}
+_DESIGN_KEYS = {"crest_width_m", "height_m", "slope_rise_run", "length_m"}
+_TOLERANCE_KEYS = {"crest_rise_m", "crest_widening_m", "slope_lengthening_m", "end_extension_m"}
+_FOUNDATION_KEYS = {"kind", "amplitude_m", "cell_m", "seed"}
+
+
+def parse_scene(text: str, source: str, base_dir: str | None) -> Scene:
+    """Build a Scene from TOML text; ``source`` names it in error messages."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source}: malformed TOML: {exc}") from None
+    _check_keys(data, _TOP_KEYS, source)
+    design = _table(data, "design", source, required=True)
+    _check_keys(design, _DESIGN_KEYS, f"{source}: [design]")
+    tol_table = _table(data, "tolerance", source)
+    _check_keys(tol_table, _TOLERANCE_KEYS, f"{source}: [tolerance]")
+    found = _table(data, "foundation", source)
+    _check_keys(found, _FOUNDATION_KEYS, f"{source}: [foundation]")
+
+    name = _str(data, "name", source, default=Path(source).stem)
+    kind = _str(data, "kind", source, default="3d")
+    if kind not in SCENE_KINDS:
+        raise InputError(f"{source}: kind must be one of {', '.join(SCENE_KINDS)}, not {kind!r}")
+    block_type = _str(data, "block", source, default="shake-4t")
+    block = get_block(block_type, base_dir)
+
+    crest_width = _num(design, "crest_width_m", source, lo=0.0)
+    height = _num(design, "height_m", source, lo=0.0, lo_open=True)
+    length = _num(design, "length_m", source, lo=0.0, lo_open=True)
+    rise_run = design.get("slope_rise_run")
+    if (not isinstance(rise_run, list) or len(rise_run) != 2
+            or not all(_is_num(v) and 0 < v < 1e6 for v in rise_run)):
+        raise InputError(f"{source}: [design] slope_rise_run must be two positive numbers, e.g. [3, 4]")
+    slope = float(rise_run[1]) / float(rise_run[0])
+    for key, value in (("crest_width_m", crest_width), ("height_m", height), ("length_m", length)):
+        if value > 10_000:
+            raise InputError(f"{source}: [design] {key} = {value} m is not a breakwater")
+
+    default = Allowance.table_ii(block.height)
+    allowance = Allowance(
+        crest_rise=_num(tol_table, "crest_rise_m", source, default=default.crest_rise, lo=0.0),
+        crest_widening=_num(tol_table, "crest_widening_m", source, default=default.crest_widening, lo=0.0),
+        slope_lengthening=_num(tol_table, "slope_lengthening_m", source,
+                               default=default.slope_lengthening, lo=0.0),
+        end_extension=_num(tol_table, "end_extension_m", source, default=default.end_extension, lo=0.0),
+    )
+
+    target = _num(data, "target_porosity_percent", source, default=56.0, lo=0.0, lo_open=True)
+    if target >= 100.0:
+        raise InputError(f"{source}: target_porosity_percent must be below 100")
+
+    f_kind = _str(found, "kind", source, default="flat")
+    if f_kind not in ("flat", "rough"):
+        raise InputError(f"{source}: [foundation] kind must be flat or rough, not {f_kind!r}")
+    amplitude = _num(found, "amplitude_m", source, default=0.0 if f_kind == "flat" else 0.1, lo=0.0)
+    cell = _num(found, "cell_m", source, default=0.5, lo=0.05)
+    seed = found.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise InputError(f"{source}: [foundation] seed must be a non-negative integer")
+    if f_kind == "rough" and amplitude > height:
+        raise InputError(f"{source}: [foundation] amplitude_m exceeds the design height")
+
+    scene = Scene(
+        name=name, kind=kind, block_type=block_type, crest_width=crest_width, height=height,
+        slope=slope, length=length, target_porosity=target, required_blocks=0,
+        allowance=allowance, foundation=Foundation(), base_dir=base_dir,
+    )
+    zone = scene.tolerance
+    margin = 2.0 * block.bounding_radius
+    extent = (-zone.bottom_half_width - margin, zone.bottom_half_width + margin,
+              zone.y_start - margin, zone.y_end + margin)
+    foundation = Foundation(f_kind, amplitude if f_kind == "rough" else 0.0, cell, seed, extent)
+    if f_kind == "rough" and (extent[1] - extent[0]) * (extent[3] - extent[2]) / cell**2 > 4e6:
+        raise InputError(f"{source}: [foundation] cell_m = {cell} m makes too fine a height field")
+
+    default_required = math.ceil((1 - target / 100) * scene.design_volume / block.volume - 1e-9)
+    required = data.get("required_blocks", default_required)
+    if not isinstance(required, int) or isinstance(required, bool) or not 0 <= required <= 100_000:
+        raise InputError(f"{source}: required_blocks must be an integer from 0 to 100000")
+
+    return Scene(
+        name=name, kind=kind, block_type=block_type, crest_width=crest_width, height=height,
+        slope=slope, length=length, target_porosity=target, required_blocks=required,
+        allowance=allowance, foundation=foundation, base_dir=base_dir,
+    )
+
+
+def _check_keys(table: dict[str, Any], allowed: set[str], where: str) -> None:
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise InputError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+
+
+def _table(data: dict[str, Any], key: str, source: str, required: bool = False) -> dict[str, Any]:
+    value = data.get(key)
+    if value is None:
+        if required:
+            raise InputError(f"{source}: missing [{key}] table")
+        return {}
+    if not isinstance(value, dict):
+        raise InputError(f"{source}: {key} must be a table")
+    return value
+
+
+def _is_num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _num(table: dict[str, Any], key: str, source: str, default: float | None = None,
+         lo: float | None = None, lo_open: bool = False) -> float:
+    if key not in table:
+        if default is None:
+            raise InputError(f"{source}: missing {key}")
+        return float(default)
+    v = table[key]
+    if not _is_num(v):
+        raise InputError(f"{source}: {key} must be a finite number, not {v!r}")
+    if lo is not None and (v < lo or (lo_open and v == lo)):
+        raise InputError(f"{source}: {key} = {v} must be {'>' if lo_open else '>='} {lo}")
+    return float(v)
+
+
+def _str(table: dict[str, Any], key: str, source: str, default: str) -> str:
+    v = table.get(key, default)
+    if not isinstance(v, str):
+        raise InputError(f"{source}: {key} must be a string")
+    return v

@@ -1,0 +1,101 @@
+"""Simulator saves: Unity's left-handed, y-up frame to shoha's world frame.
+
+CONTRACT.md ("Simulator saves") fixes the conversion::
+
+    p_world = (x_u, z_u, y_u) + origin
+    R_world = P @ R_unity @ P          P swaps y and z
+
+Conjugating a rotation by the reflection P keeps its angle's magnitude but
+mirrors its axis and reverses its sense, so for a Unity quaternion
+``(x, y, z, w)`` the world quaternion is ``[w, -x, -z, -y]`` (scalar first):
+sign flips and a swap, exact in floating point.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .blocks import get_block
+from .constants import MAX_BLOCKS
+from .errors import InputError
+from .fileio import read_json
+from .layout import Layout, Placement, normalised_quaternion
+from .pose import Pose
+
+#: The permutation matrix that swaps y and z.
+SWAP_YZ = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+
+
+def unity_to_world(position: dict[str, float], rotation: dict[str, float],
+                   origin: np.ndarray) -> Pose:
+    """World pose of a Unity ``Vector3`` position and ``Quaternion`` rotation."""
+    p = np.array([position["x"], position["z"], position["y"]]) + origin
+    q = np.array([rotation["w"], -rotation["x"], -rotation["z"], -rotation["y"]])
+    return Pose(p, q)
+
+
+def read_unity_save(
+    path: str | os.PathLike,
+    scene: str = "mini",
+    block: str = "shake-4t",
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0),
+) -> Layout:
+    """Convert a simulator save to a layout.
+
+    Blocks get ids ``0..n-1`` in save order, which is their installation
+    order. A block without ``type`` takes ``block``.
+
+    Raises
+    ------
+    InputError
+        For a malformed save: missing or non-numeric fields, NaN, a rotation
+        whose norm is not 1, an unknown block type, or too many blocks.
+    """
+    path = Path(path)
+    data = read_json(path)
+    source = str(path)
+    if not isinstance(data, dict) or not isinstance(data.get("blocks"), list):
+        raise InputError(f"{source}: a simulator save is an object with a 'blocks' list")
+    raw_blocks = data["blocks"]
+    if len(raw_blocks) > MAX_BLOCKS:
+        raise InputError(f"{source}: {len(raw_blocks)} blocks is more than {MAX_BLOCKS}")
+    origin_arr = np.asarray(origin, dtype=float)
+    base_dir = str(path.resolve().parent)
+    get_block(block, base_dir)
+    placements = []
+    for index, raw in enumerate(raw_blocks):
+        where = f"{source}: block #{index}"
+        if not isinstance(raw, dict):
+            raise InputError(f"{where}: must be a JSON object")
+        kind = raw.get("type", block)
+        if not isinstance(kind, str):
+            raise InputError(f"{where}: type must be a string")
+        try:
+            get_block(kind, base_dir)
+        except InputError as exc:
+            raise InputError(f"{where}: {exc}") from None
+        position = _fields(raw.get("position"), "xyz", "position", where)
+        rotation = _fields(raw.get("rotation"), "xyzw", "rotation", where)
+        q = np.array([rotation[c] for c in "xyzw"])
+        normalised_quaternion(q, where)
+        placements.append(Placement(index, kind, unity_to_world(position, rotation, origin_arr)))
+    return Layout(scene, placements, {}, base_dir)
+
+
+def _fields(value: Any, names: str, what: str, where: str) -> dict[str, float]:
+    if not isinstance(value, dict):
+        raise InputError(f"{where}: {what} must be an object with {', '.join(names)}")
+    out = {}
+    for c in names:
+        v = value.get(c)
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise InputError(f"{where}: {what}.{c} must be a number")
+        if not math.isfinite(v):
+            raise InputError(f"{where}: {what}.{c} is not finite")
+        out[c] = float(v)
+    return out

@@ -1,0 +1,80 @@
+"""Canonical fixtures, kept in one place (STYLE.md, "Tests").
+
+A unit cube block, one block wholly inside the design prism, one protruding,
+one colliding pair and an empty layout, on the built-in ``mini`` scene.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from geometry.blocks import Block, get_block
+from geometry.pose import Pose
+from geometry.scene import Scene, load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _isolated_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """Keep CoACD decompositions made by tests out of the user's cache."""
+    os.environ["SHOHA_CACHE"] = str(tmp_path_factory.mktemp("shoha-cache"))
+
+
+@pytest.fixture(scope="session")
+def mini() -> Scene:
+    return load_scene("mini")
+
+
+@pytest.fixture(scope="session")
+def shake() -> Block:
+    return get_block("shake-4t")
+
+
+@pytest.fixture(scope="session")
+def cube() -> Block:
+    return get_block("box:1x1x1")
+
+
+def standing(block: Block, x: float, y: float, yaw: float = 0.0, ground: float = 0.0) -> Pose:
+    """``block`` standing in its block-frame orientation, turned by ``yaw``, on z = ground."""
+    q = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+    pose = Pose([x, y, 0.0], q)
+    zmin = pose.apply(block.vertices)[:, 2].min()
+    return Pose([x, y, ground - zmin], q)
+
+
+@pytest.fixture(scope="session")
+def inside_block(shake: Block) -> tuple[int, Block, Pose]:
+    """A Shake Block standing wholly inside mini's design prism."""
+    return (0, shake, standing(shake, 0.0, 6.0))
+
+
+@pytest.fixture(scope="session")
+def protruding_block(shake: Block) -> tuple[int, Block, Pose]:
+    """A Shake Block standing on the crest, sticking up out of both prisms."""
+    return (1, shake, standing(shake, 0.0, 3.0, ground=2.5))
+
+
+@pytest.fixture(scope="session")
+def colliding_pair(cube: Block) -> list[tuple[int, Block, Pose]]:
+    """Two unit cubes overlapping by 0.2 m along x, inside mini."""
+    return [(0, cube, Pose([0.0, 5.0, 0.5], [1, 0, 0, 0])), (1, cube, Pose([0.8, 5.0, 0.5], [1, 0, 0, 0]))]
+
+
+@pytest.fixture
+def empty_layout() -> list[tuple[int, Block, Pose]]:
+    return []
+
+
+def shoha(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run the installed ``shoha`` console script, as a user would."""
+    exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
+    return subprocess.run([exe, *args], capture_output=True, text=True, cwd=cwd, timeout=timeout)

@@ -1,0 +1,148 @@
+"""Block models: Table I's Shake Block, the tetrapod, boxes and user meshes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from geometry.blocks import LEG_DIRECTIONS, get_block, mesh_block, tetrapod
+from geometry.errors import InputError
+
+
+def test_shake_block_matches_table_i(shake):
+    # Table I: 1.735 m^3 and 9.796 m^2; the issue allows 0.5 %, the fit is exact.
+    assert abs(shake.volume / 1.735 - 1) < 0.005
+    assert abs(shake.surface_area / 9.796 - 1) < 0.005
+    np.testing.assert_allclose(shake.volume, 1.735, rtol=1e-9)
+    np.testing.assert_allclose(shake.surface_area, 9.796, rtol=1e-9)
+    # 2300 kg/m^3 x 1.735 m^3 = 3990.5 kg, Table I's 3.991 t to its 3 decimals.
+    assert round(shake.mass / 1000, 2) == round(3.991, 2)
+
+
+def test_shake_block_measures_agree_with_trimesh(shake):
+    # An independent library measures the same closed surface.
+    m = shake.trimesh
+    assert m.is_watertight and m.is_winding_consistent
+    np.testing.assert_allclose(m.volume, shake.volume, rtol=1e-9)
+    np.testing.assert_allclose(m.area, shake.surface_area, rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod", "tetrapod:3.5", "box:1x2x3"])
+def test_block_frame_origin_is_the_centroid(name):
+    b = get_block(name)
+    np.testing.assert_allclose(b.trimesh.center_mass, 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod"])
+def test_one_leg_points_along_local_z(name):
+    b = get_block(name)
+    top = b.vertices[b.vertices[:, 2] > b.vertices[:, 2].max() - 1e-9]
+    # The topmost face is a leg end centred on the z axis.
+    np.testing.assert_allclose(top[:, :2].mean(axis=0), 0.0, atol=1e-9)
+    # Tetrahedral symmetry: the block looks the same along each leg direction.
+    reach = [(b.vertices @ d).max() for d in LEG_DIRECTIONS]
+    np.testing.assert_allclose(reach, reach[0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod", "box:1x1x1"])
+def test_pieces_cover_the_block_and_nothing_else(name):
+    b = get_block(name)
+    rng = np.random.default_rng(0)
+    lo, hi = b.vertices.min(axis=0), b.vertices.max(axis=0)
+    pts = rng.uniform(lo, hi, (4000, 3))
+    in_mesh = b.trimesh.contains(pts)
+    in_pieces = np.any([p.contains(pts) for p in b.pieces], axis=0)
+    assert np.array_equal(in_mesh, in_pieces)
+
+
+def test_tetrapod_is_parametric_in_height():
+    for h in (1.0, 2.0, 4.5):
+        t = tetrapod(h)
+        np.testing.assert_allclose(t.height, h, rtol=1e-9)
+        assert len(t.pieces) == 4
+    # Volume scales with H^3.
+    np.testing.assert_allclose(tetrapod(4.0).volume / tetrapod(2.0).volume, 8.0, rtol=1e-6)
+
+
+def test_tetrapod_leg_taper_is_about_ten_degrees():
+    t = tetrapod(2.0)
+    leg = t.pieces[0]  # along +z
+    z = leg.vertices[:, 2]
+    r = np.linalg.norm(leg.vertices[:, :2], axis=1)
+    base, tip = r[z < z.min() + 1e-9].max(), r[z > z.max() - 1e-9].max()
+    taper = np.degrees(np.arctan((base - tip) / (z.max() - z.min())))
+    assert 9.0 < taper < 11.0
+
+
+def test_box_block_measures():
+    b = get_block("box:1x2x3")
+    np.testing.assert_allclose([b.volume, b.surface_area, b.height], [6.0, 22.0, 3.0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["cube", "shake", "tetrapod:0", "tetrapod:abc", "box:1x1", "box:1x1x-1",
+                                  "mesh:", "tetrapod:nan"])
+def test_unknown_or_bad_block_names_are_input_errors(name):
+    with pytest.raises(InputError):
+        get_block(name)
+
+
+def test_mesh_block_from_exported_shake_block(tmp_path, shake):
+    path = tmp_path / "shake.stl"
+    shake.export(path)
+    b = get_block(f"mesh:{path}")
+    np.testing.assert_allclose(b.volume, shake.volume, rtol=1e-5)  # STL stores float32
+    np.testing.assert_allclose(b.trimesh.center_mass, 0.0, atol=1e-6)
+    assert len(b.pieces) >= 1
+    # CoACD's pieces cover the solid.
+    rng = np.random.default_rng(1)
+    pts = b.vertices[rng.choice(len(b.vertices), 50)] * 0.98
+    assert np.any([p.contains(pts, margin=0.02) for p in b.pieces], axis=0).all()
+
+
+def test_mesh_decomposition_is_cached_by_hash(tmp_path, monkeypatch):
+    import coacd
+
+    from geometry.blocks import cache_dir
+
+    mesh = trimesh.creation.box([1.0, 2.0, 0.5])
+    path = tmp_path / "slab.obj"
+    mesh.export(path)
+    first = mesh_block(str(path))
+    cached = list((cache_dir() / "coacd").glob("*.npz"))
+    assert cached, "decomposition was not written to the cache"
+    mesh_block.cache_clear()
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("CoACD ran although the decomposition was cached")
+
+    monkeypatch.setattr(coacd, "run_coacd", refuse)
+    second = mesh_block(str(path))
+    assert len(second.pieces) == len(first.pieces)
+    for a, b in zip(first.pieces, second.pieces, strict=True):
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
+def test_open_mesh_is_an_input_error(tmp_path):
+    mesh = trimesh.creation.box([1.0, 1.0, 1.0])
+    mesh.update_faces(np.arange(len(mesh.faces)) != 0)  # punch a hole
+    path = tmp_path / "open.stl"
+    mesh.export(path)
+    with pytest.raises(InputError, match="not watertight"):
+        mesh_block(str(path))
+
+
+def test_garbage_mesh_file_is_an_input_error(tmp_path):
+    path = tmp_path / "junk.stl"
+    path.write_bytes(b"\x00\x01 this is not an STL" * 3)
+    with pytest.raises(InputError):
+        mesh_block(str(path))
+
+
+def test_block_export_round_trips_in_block_frame(tmp_path, shake):
+    for suffix in ("stl", "obj", "glb"):
+        path = tmp_path / f"b.{suffix}"
+        shake.export(path)
+        m = trimesh.load(path, force="mesh")
+        np.testing.assert_allclose(m.volume, shake.volume, rtol=1e-5)
+        np.testing.assert_allclose(m.bounds, [shake.vertices.min(0), shake.vertices.max(0)], atol=1e-5)

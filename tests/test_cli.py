@@ -1,0 +1,193 @@
+"""The shoha command line, run as a user runs it (CONTRACT.md, "CLI")."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import pytest
+import trimesh
+
+from geometry.layout import Layout, Placement, write_layout
+from geometry.samples import random_inside
+from tests.conftest import ROOT, shoha
+
+
+@pytest.fixture(scope="module")
+def layout25(tmp_path_factory, mini, shake):
+    path = tmp_path_factory.mktemp("cli") / "l25.json"
+    placed = random_inside(shake, mini.design, 25, seed=16)
+    write_layout(Layout("mini", [Placement(k, "shake-4t", p) for k, _, p in placed]), path)
+    return path
+
+
+def _json(result):
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+def test_help_is_quick_and_lists_commands():
+    r = shoha("--help")
+    assert r.returncode == 0
+    for verb in ("block", "scene", "convert", "porosity", "check"):
+        assert verb in r.stdout
+
+
+def test_block_info_meets_table_i():
+    d = _json(shoha("block", "info", "shake-4t", "--json"))
+    assert set(d) >= {"name", "volume_m3", "surface_area_m2", "height_m", "mass_t", "convex_pieces"}
+    assert abs(d["volume_m3"] / 1.735 - 1) < 0.005 and abs(d["surface_area_m2"] / 9.796 - 1) < 0.005
+
+
+def test_block_export(tmp_path):
+    out = tmp_path / "b.glb"
+    d = _json(shoha("block", "export", "tetrapod", "--out", str(out), "--json"))
+    assert d["path"] == str(out) and trimesh.load(out, force="mesh").is_watertight
+
+
+def test_scene_info_and_export(tmp_path):
+    d = _json(shoha("scene", "info", "mini", "--json"))
+    assert set(d) >= {"name", "block", "design_volume_m3", "tolerance_volume_m3", "required_blocks",
+                      "target_porosity_percent"}
+    assert d["required_blocks"] == 75 and abs(d["design_volume_m3"] - 293.3) < 1e-9
+    d = _json(shoha("scene", "export", "mini", "--out", str(tmp_path / "m"), "--json"))
+    meshes = [trimesh.load(p) for p in d["paths"]]
+    assert [Path(p).name for p in d["paths"]] == ["design.stl", "tolerance.stl"]
+    assert all(m.is_watertight for m in meshes)
+    assert abs(meshes[0].volume - 293.3) < 1e-3
+
+
+@pytest.mark.parametrize("method, divisions", [("exact", None), ("voxel", "100"), ("voxel-any", "50")])
+def test_porosity_keys(layout25, method, divisions):
+    args = ["porosity", str(layout25), "--method", method, "--json"]
+    if divisions:
+        args += ["--divisions", divisions]
+    d = _json(shoha(*args))
+    assert set(d) >= {"porosity_percent", "method", "divisions", "blocks", "design_volume_m3", "seconds"}
+    assert d["blocks"] == 25 and d["method"] == method
+    if method == "exact":
+        assert round(d["porosity_percent"], 2) == 85.21
+
+
+def test_check_keys(layout25):
+    d = _json(shoha("check", str(layout25), "--json"))
+    assert set(d) >= {"blocks", "required_blocks", "remaining_blocks", "out_of_tolerance", "collisions",
+                      "porosity_percent"}
+    assert (d["blocks"], d["required_blocks"], d["remaining_blocks"]) == (25, 75, 50)
+    assert d["out_of_tolerance"] == [] and d["collisions"] == []
+
+
+def test_check_reports_faults(tmp_path, colliding_pair, protruding_block):
+    path = tmp_path / "f.json"
+    blocks = [Placement(k, "box:1x1x1", p) for k, _, p in colliding_pair]
+    blocks.append(Placement(7, "shake-4t", protruding_block[2]))
+    write_layout(Layout("mini", blocks), path)
+    d = _json(shoha("check", str(path), "--json"))
+    assert [(c["a"], c["b"]) for c in d["collisions"]] == [(0, 1)]
+    assert abs(d["collisions"][0]["depth_m"] - 0.2) < 1e-6
+    assert [o["id"] for o in d["out_of_tolerance"]] == [7] and d["out_of_tolerance"][0]["outside_volume_m3"] > 0
+
+
+def test_convert_unity_save(tmp_path):
+    save = tmp_path / "save.json"
+    save.write_text(json.dumps({"blocks": [{"position": {"x": 1, "y": 2, "z": 3},
+                                            "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]}))
+    out = tmp_path / "l.json"
+    d = _json(shoha("convert", str(save), "--from", "unity", "--out", str(out), "--origin", "1,0,0", "--json"))
+    assert d == {"blocks": 1, "path": str(out)}
+    block = json.loads(out.read_text())["blocks"][0]
+    assert block["position"] == [2.0, 3.0, 2.0] and block["type"] == "shake-4t"
+
+
+def _broken_stl(tmp_path):
+    mesh = trimesh.creation.box([1, 1, 1])
+    mesh.update_faces([True] * (len(mesh.faces) - 1) + [False])
+    path = tmp_path / "open.stl"
+    mesh.export(path)
+    return path
+
+
+def _layout_text(**block):
+    b = {"id": 0, "type": "shake-4t", "position": [0.0, 1.0, 1.0], "quaternion": [1.0, 0.0, 0.0, 0.0]}
+    b.update(block)
+    return json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [b]})
+
+
+BAD_LAYOUTS = {
+    "malformed JSON": "{\"format\": ",
+    "NaN": _layout_text().replace("0.0, 1.0, 1.0", "NaN, 1.0, 1.0"),
+    "quaternion norm 0": _layout_text(quaternion=[0, 0, 0, 0]),
+    "unknown block type": _layout_text(type="dolos"),
+    "duplicate ids": json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [
+        json.loads(_layout_text())["blocks"][0]] * 2}),
+    "wrong types": _layout_text(position="here"),
+    "unknown scene": _layout_text().replace('"mini"', '"atlantis"'),
+}
+
+
+def _assert_bad(r, name_in_message):
+    assert r.returncode == 2, (r.returncode, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert "Traceback" not in r.stderr and name_in_message in lines[0]
+    assert r.stdout == ""
+
+
+@pytest.mark.parametrize("case", list(BAD_LAYOUTS))
+@pytest.mark.parametrize("verb", ["porosity", "check"])
+def test_bad_layouts_exit_2_with_one_line(tmp_path, case, verb):
+    path = tmp_path / "bad.json"
+    path.write_text(BAD_LAYOUTS[case])
+    _assert_bad(shoha(verb, str(path), "--json"), "bad.json" if case != "unknown scene" else "atlantis")
+
+
+def test_missing_file_exits_2(tmp_path):
+    _assert_bad(shoha("porosity", str(tmp_path / "none.json")), "none.json")
+
+
+def test_non_watertight_mesh_exits_2(tmp_path):
+    path = _broken_stl(tmp_path)
+    _assert_bad(shoha("block", "info", f"mesh:{path}", "--json"), "open.stl")
+    lay = tmp_path / "lay.json"
+    lay.write_text(_layout_text(type=f"mesh:{path}"))
+    _assert_bad(shoha("check", str(lay)), "open.stl")
+
+
+def test_bad_save_writes_nothing(tmp_path):
+    save = tmp_path / "save.json"
+    save.write_text(json.dumps({"blocks": [{"position": {"x": 1, "y": 2, "z": 3},
+                                            "rotation": {"x": 0, "y": 0, "z": 0, "w": 0}}]}))
+    out = tmp_path / "out.json"
+    _assert_bad(shoha("convert", str(save), "--from", "unity", "--out", str(out)), "save.json")
+    assert not out.exists() and list(tmp_path.iterdir()) == [save]
+
+
+@pytest.mark.parametrize("args, word", [
+    (["porosity"], "LAYOUT"),
+    (["porosity", "x.json", "--method", "magic"], "magic"),
+    (["porosity", "x.json", "--divisions", "0"], "divisions"),
+    (["convert", "s.json", "--out", "o.json"], "--from"),
+    (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1,2"], "origin"),
+    (["frobnicate"], "frobnicate"),
+])
+def test_bad_usage_exits_2_with_one_line(tmp_path, args, word):
+    (tmp_path / "s.json").write_text('{"blocks": []}')
+    _assert_bad(shoha(*args, cwd=tmp_path), word)
+
+
+def test_wheel_holds_exactly_the_three_packages(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
+                        "-w", str(tmp_path), str(ROOT)], capture_output=True, text=True, timeout=300)
+    if r.returncode != 0 and "setuptools" in r.stderr:
+        r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", str(tmp_path), str(ROOT)],
+                           capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    (wheel,) = tmp_path.glob("shoha-*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert top == {"geometry", "settle", "optimizer"}
+    assert "geometry/scenes/mini.toml" in names

@@ -1,0 +1,117 @@
+"""Layout files: shoha-layout/1, validated at the boundary, lossless."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from geometry.errors import InputError
+from geometry.layout import Layout, Placement, read_layout, write_layout
+from geometry.pose import Pose
+from geometry.samples import random_quaternion
+
+
+def _layout(n: int = 5, seed: int = 0) -> Layout:
+    rng = np.random.default_rng(seed)
+    blocks = [Placement(i * 3 + 1, "shake-4t", Pose(rng.normal(size=3) * 5, random_quaternion(rng)))
+              for i in range(n)]
+    return Layout("mini", blocks, {"note": "kept", "generator": {"seed": seed}})
+
+
+def test_round_trip_is_lossless(tmp_path):
+    layout = _layout()
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    write_layout(layout, a)
+    back = read_layout(a)
+    write_layout(back, b)
+    assert a.read_bytes() == b.read_bytes()
+    for p, q in zip(layout.blocks, back.blocks, strict=True):
+        assert p.id == q.id and p.type == q.type
+        assert np.array_equal(p.pose.position, q.pose.position)
+        assert np.array_equal(p.pose.quaternion, q.pose.quaternion)
+    assert back.extra == {"note": "kept", "generator": {"seed": 0}}
+    assert [p.id for p in back.blocks] == [1, 4, 7, 10, 13]  # order is installation order
+
+
+def test_written_file_follows_the_contract(tmp_path):
+    path = tmp_path / "l.json"
+    write_layout(_layout(2), path)
+    data = json.loads(path.read_text())
+    assert data["format"] == "shoha-layout/1" and data["scene"] == "mini"
+    assert set(data["blocks"][0]) == {"id", "type", "position", "quaternion"}
+
+
+def test_near_unit_quaternion_is_normalised(tmp_path):
+    path = tmp_path / "q.json"
+    path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [
+        {"id": 0, "type": "shake-4t", "position": [0, 1, 2], "quaternion": [1.0000005, 0, 0, 0]}]}))
+    q = read_layout(path).blocks[0].pose.quaternion
+    np.testing.assert_allclose(np.linalg.norm(q), 1.0, atol=1e-15)
+
+
+def _block(**over):
+    b = {"id": 0, "type": "shake-4t", "position": [0.0, 1.0, 1.0], "quaternion": [1.0, 0.0, 0.0, 0.0]}
+    b.update(over)
+    return b
+
+
+BAD = [
+    ("{not json", "malformed JSON"),
+    ('{"format": "shoha-layout/1", "scene": "mini", "blocks": [{"id": 0, "type": "shake-4t", '
+     '"position": [NaN, 0, 0], "quaternion": [1, 0, 0, 0]}]}', "NaN"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(quaternion=[0, 0, 0, 0])]}),
+     "quaternion norm 0 is not 1"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(quaternion=[0.9, 0, 0, 0])]}),
+     "quaternion norm 0.9 is not 1"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(type="brick")]}),
+     "unknown block type"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(), _block()]}),
+     "duplicate id"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(colour="red")]}),
+     "unknown key 'colour'"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(id=-1)]}), "id must be"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(id=True)]}), "id must be"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(position=[0, 1])]}),
+     "position must be"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(position=["0", 1, 2])]}),
+     "position must be"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(position=[1e300, 1, 2])]}),
+     "from the origin"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": {}}), "blocks must be a list"),
+    (json.dumps({"format": "shoha-layout/2", "scene": "mini", "blocks": []}), "format must be"),
+    (json.dumps({"format": "shoha-layout/1", "blocks": []}), "scene must be"),
+    (json.dumps([1, 2, 3]), "JSON object"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [{}] * 100_001}), "more than 100000"),
+    ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+]
+
+
+@pytest.mark.parametrize("text, message", BAD, ids=[m for _, m in BAD])
+def test_bad_layouts_are_input_errors(tmp_path, text, message):
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(InputError, match=message) as info:
+        read_layout(path)
+    assert str(path) in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+def test_missing_and_binary_files(tmp_path):
+    with pytest.raises(InputError, match="not found"):
+        read_layout(tmp_path / "nope.json")
+    path = tmp_path / "bin.json"
+    path.write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(InputError):
+        read_layout(path)
+
+
+def test_mesh_type_resolves_relative_to_the_layout(tmp_path, shake):
+    (tmp_path / "meshes").mkdir()
+    shake.export(tmp_path / "meshes" / "b.stl")
+    path = tmp_path / "l.json"
+    path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini",
+                                "blocks": [_block(type="mesh:meshes/b.stl")]}))
+    (_, block, _), = read_layout(path).placed()
+    np.testing.assert_allclose(block.volume, shake.volume, rtol=1e-5)

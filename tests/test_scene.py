@@ -1,0 +1,94 @@
+"""Scenes: the mini breakwater, Table II's tolerance zone, TOML loading."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geometry.errors import InputError
+from geometry.scene import builtin_scenes, load_scene, parse_scene
+
+MINI_TOML = """
+name = "t"
+block = "shake-4t"
+[design]
+crest_width_m = 4.0
+height_m = 3.0
+slope_rise_run = [3.0, 4.0]
+length_m = 12.220833333333333
+"""
+
+
+def test_mini_reproduces_the_paper(mini):
+    np.testing.assert_allclose(mini.design_volume, 293.3, rtol=1e-12)
+    assert mini.required_blocks == 75  # ceil(0.44 * 293.3 / 1.735)
+    assert mini.target_porosity == 56.0
+    assert mini.block_type == "shake-4t"
+    # Table V's "correct value" column is 1 - n 1.735 / 293.3.
+    for n, correct in ((9, 94.68), (17, 89.94), (25, 85.21)):
+        assert round(100 * (1 - n * 1.735 / mini.design_volume), 2) == correct
+
+
+def test_tolerance_zone_meets_table_ii(mini):
+    h3 = mini.block.height / 3
+    d, t = mini.design, mini.tolerance
+    np.testing.assert_allclose(t.z_top - d.z_top, h3, rtol=1e-12)  # base height + H/3
+    np.testing.assert_allclose(2 * (t.top_half_width - d.top_half_width), h3, rtol=1e-12)  # top width
+    slope_d = np.hypot(d.height, d.bottom_half_width - d.top_half_width)
+    slope_t = np.hypot(t.height, t.bottom_half_width - t.top_half_width)
+    np.testing.assert_allclose(slope_t - slope_d, h3, rtol=1e-12)  # slope length (法長) + H/3
+    np.testing.assert_allclose([d.y_start - t.y_start, t.y_end - d.y_end], h3, rtol=1e-12)
+
+
+def test_design_prism_lies_in_the_tolerance_zone(mini):
+    assert mini.tolerance.polytope.contains(mini.design.corners).all()
+    assert mini.tolerance.volume > mini.design_volume
+
+
+def test_builtin_scenes_load():
+    assert "mini" in builtin_scenes()
+    for name in builtin_scenes():
+        s = load_scene(name)
+        assert s.required_blocks > 0 and s.design_volume > 0
+
+
+def test_scene_file_with_defaults(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_text(MINI_TOML)
+    s = load_scene(str(p))
+    assert s.required_blocks == 75 and s.foundation.kind == "flat"
+
+
+def test_rough_foundation_is_seeded_and_bounded(tmp_path):
+    text = MINI_TOML + '[foundation]\nkind = "rough"\namplitude_m = 0.2\nseed = 3\n'
+    a, b = parse_scene(text, "a", None), parse_scene(text, "b", None)
+    xy = np.random.default_rng(0).uniform([-6, 0], [6, 12], (500, 2))
+    ha, hb = a.foundation.height_at(xy), b.foundation.height_at(xy)
+    np.testing.assert_array_equal(ha, hb)
+    assert ha.min() >= -0.2 and ha.max() <= 0.2 and ha.std() > 0.02
+    assert a.tolerance.z_bottom == pytest.approx(-0.2)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("name = 1\n[design]\n", "name"),
+        ("[design]\ncrest_width_m = 4.0\n", "missing"),
+        (MINI_TOML.replace("[3.0, 4.0]", "[0, 4]"), "slope_rise_run"),
+        (MINI_TOML.replace("4.0\nheight", "nan\nheight"), "finite"),
+        (MINI_TOML.replace("12.220833333333333", "-1"), "length_m"),
+        (MINI_TOML + "colour = 'red'\n", "unknown key"),
+        (MINI_TOML.replace('"shake-4t"', '"brick"'), "unknown block"),
+        (MINI_TOML + "required_blocks = 1e9\n", "required_blocks"),
+        ("this is = = not toml", "malformed TOML"),
+        (MINI_TOML + "[foundation]\nkind = 'lava'\n", "flat or rough"),
+    ],
+)
+def test_bad_scene_files_are_input_errors(text, message):
+    with pytest.raises(InputError, match=message):
+        parse_scene(text, "bad.toml", None)
+
+
+def test_missing_scene_is_an_input_error():
+    with pytest.raises(InputError, match="no such scene"):
+        load_scene("atlantis")

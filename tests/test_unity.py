@@ -1,0 +1,74 @@
+"""Simulator saves: Unity's left-handed, y-up frame to shoha's world frame."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from geometry.errors import InputError
+from geometry.pose import quat_to_matrix
+from geometry.unity import SWAP_YZ, read_unity_save
+
+
+def _unity_matrix(x, y, z, w):
+    """Unity's Quaternion -> Matrix4x4 (the same algebra as Hamilton's)."""
+    return quat_to_matrix([w, x, y, z])
+
+
+def test_hand_computed_transform(tmp_path):
+    # A block 90 degrees about Unity's up axis (y), at Unity (1, 0.9, 2).
+    s, c = np.sin(np.pi / 4), np.cos(np.pi / 4)
+    save = {"blocks": [{"type": "shake-4t", "position": {"x": 1.0, "y": 0.9, "z": 2.0},
+                        "rotation": {"x": 0.0, "y": s, "z": 0.0, "w": c}}]}
+    path = tmp_path / "save.json"
+    path.write_text(json.dumps(save))
+    layout = read_unity_save(path, origin=(10.0, 20.0, 0.5))
+    (p,) = layout.blocks
+    # Position: (x, z, y) + origin, by hand.
+    np.testing.assert_allclose(p.pose.position, [11.0, 22.0, 1.4], atol=1e-12)
+    # Rotation: turning about Unity's up (+y) is turning about world up (+z) the other way,
+    # because Unity's frame is left-handed: R_world = Rz(-90 deg).
+    rz = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(p.pose.rotation, rz, atol=1e-12)
+
+
+def test_matches_contract_matrix_formula_for_random_rotations(tmp_path):
+    rng = np.random.default_rng(5)
+    blocks = []
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        blocks.append({"position": dict(zip("xyz", rng.normal(size=3), strict=True)),
+                       "rotation": dict(zip("xyzw", q, strict=True))})
+    path = tmp_path / "save.json"
+    path.write_text(json.dumps({"blocks": blocks}))
+    layout = read_unity_save(path)
+    for raw, p in zip(blocks, layout.blocks, strict=True):
+        r = raw["rotation"]
+        expected = SWAP_YZ @ _unity_matrix(r["x"], r["y"], r["z"], r["w"]) @ SWAP_YZ
+        np.testing.assert_allclose(p.pose.rotation, expected, atol=1e-12)
+        assert np.linalg.det(p.pose.rotation) == pytest.approx(1.0)
+        # A block's "up" leg, local +y in Unity, is local +z in shoha; both point the same way.
+        up_unity = _unity_matrix(r["x"], r["y"], r["z"], r["w"]) @ [0.0, 1.0, 0.0]
+        np.testing.assert_allclose(p.pose.rotation @ [0.0, 0.0, 1.0], SWAP_YZ @ up_unity, atol=1e-12)
+    assert [p.id for p in layout.blocks] == list(range(20))
+    assert all(p.type == "shake-4t" for p in layout.blocks)
+
+
+@pytest.mark.parametrize("save, message", [
+    ({"blocks": [{"position": {"x": 0, "y": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]}, "position.z"),
+    ({"blocks": [{"position": {"x": 0, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 0}}]},
+     "norm 0 is not 1"),
+    ({"blocks": [{"type": "tetrapodd", "position": {"x": 0, "y": 0, "z": 0},
+                  "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]}, "unknown block type"),
+    ({"blockz": []}, "blocks"),
+    ({"blocks": [{"position": {"x": "1", "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]},
+     "must be a number"),
+])
+def test_bad_saves(tmp_path, save, message):
+    path = tmp_path / "save.json"
+    path.write_text(json.dumps(save))
+    with pytest.raises(InputError, match=message):
+        read_unity_save(path)
