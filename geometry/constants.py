@@ -32,6 +32,19 @@ class Tolerances:
         while any push of one block into another is caught.
     drop_resolution : float, metres
         How close a lowered block comes to what it rests on.
+    rest_speed : float, m/s
+        A block is at rest in a physics settle while no point of it moves
+        faster than this (``|v| + |omega| R``, R its bounding radius).
+    rest_time : float, seconds
+        A settle stops early once every block has been at rest this long. A
+        block that starts from rest with a constant acceleration ``a`` stays
+        under ``rest_speed`` for this long only if ``a < rest_speed /
+        rest_time`` (0.005 m/s^2), so stopping can hide at most
+        ``a T^2 / 2`` = 1 cm of motion in a 2 s settle, a fifth of the 0.05 H
+        stability threshold of a 1 m block.
+    plane_angle : float, radians
+        In a section scene a block may turn only about y; its local y axis may
+        be off world y by this much (float noise of a file's quaternion).
     """
 
     quaternion_norm: float = 1e-6
@@ -39,6 +52,9 @@ class Tolerances:
     volume: float = 1e-12
     contact_depth: float = 5e-3
     drop_resolution: float = 1e-3
+    rest_speed: float = 1e-3
+    rest_time: float = 0.2
+    plane_angle: float = 1e-6
 
 
 tol = Tolerances()

@@ -1,0 +1,447 @@
+"""The physics settle: one entry point, backends behind it, and the verdict.
+
+A settle runs a short rigid-body simulation from the given poses and reports
+how far each block moved (issue 3). :func:`settle` is the one public entry
+point. The physics engine is a :class:`SettleBackend`, passed in as an
+instance, as optuna passes samplers (STYLE.md, "Strategies"):
+
+>>> settle(scene, placed)                                   # doctest: +SKIP
+>>> settle(scene, placed, backend=MujocoBackend(timestep=1e-3))  # doctest: +SKIP
+
+With ``backend=None`` the scene's kind picks it: MuJoCo for ``"3d"`` scenes,
+pymunk for ``"section"`` scenes (CONTRACT.md, "Built-in names"; docs/settle.md).
+
+The verdict (issue 3, "The verdict"): a block is stable if its centroid moved
+at most ``0.05 H`` and it turned at most 5 degrees, ``H`` being the block's
+height; both are :class:`Thresholds`. A layout is stable if every block is;
+an empty layout is trivially stable.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+import time
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, NamedTuple
+
+import numpy as np
+
+from geometry.blocks import Block
+from geometry.constants import tol
+from geometry.errors import InputError
+from geometry.pose import Pose, quat_multiply
+from geometry.scene import Scene
+
+#: Simulated time of a settle, seconds (issue 3: "2 s by default").
+DEFAULT_SECONDS = 2.0
+
+#: Longest settle accepted, simulated seconds. Blocks that have not come to
+#: rest after a minute of free fall have left the breakwater long ago.
+MAX_SECONDS = 60.0
+
+#: Speed of the random kick each free block gets at the start, m/s. Finite
+#: precision already perturbs every simulation (mujoco#366: "imagine that
+#: there is always small noise injected into your model"); a seeded kick
+#: makes that explicit, so that a block balanced on an unstable equilibrium
+#: falls the same way on every machine. Half of ``tol.rest_speed``: friction
+#: absorbs it within a few steps, and it moves a block by micrometres.
+KICK_SPEED = 0.5 * tol.rest_speed
+
+#: A progress callback: called with (simulated seconds so far, seconds asked for).
+Progress = Callable[[float, float], None]
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """When a block counts as stable after a settle.
+
+    Attributes
+    ----------
+    displacement_fraction : float
+        Largest centroid displacement, as a fraction of the block's height H
+        (issue 3: 0.05 H).
+    rotation_deg : float, degrees
+        Largest rotation angle of the block (issue 3: 5 degrees).
+    """
+
+    displacement_fraction: float = 0.05
+    rotation_deg: float = 5.0
+
+    def __post_init__(self) -> None:
+        for name in ("displacement_fraction", "rotation_deg"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
+                raise InputError(f"thresholds: {name} must be a non-negative number, not {v!r}")
+
+    def displacement_limit(self, block: Block) -> float:
+        """Largest stable displacement of ``block``, metres."""
+        return self.displacement_fraction * block.height
+
+
+class SettleBody(NamedTuple):
+    """One block handed to a backend.
+
+    Attributes
+    ----------
+    id : int
+    block : Block
+    pose : Pose
+        Initial pose, block frame to world frame.
+    movable : bool
+        A free rigid body if true; held fixed (static) if false.
+    velocity : (3,) float, m/s, world frame
+        Initial velocity of the centroid.
+    angular_velocity : (3,) float, rad/s, world frame
+        Initial angular velocity.
+    """
+
+    id: int
+    block: Block
+    pose: Pose
+    movable: bool
+    velocity: np.ndarray
+    angular_velocity: np.ndarray
+
+
+@dataclass(frozen=True)
+class Run:
+    """What a backend returns: where the free blocks ended up.
+
+    Attributes
+    ----------
+    poses : dict of int to Pose
+        Final pose of every movable block, by id.
+    simulated_seconds : float
+        Simulated time, seconds; less than asked when the run stopped early.
+    steps : int
+        Time steps taken.
+    at_rest : bool
+        Whether it stopped early because every block had come to rest.
+    peak_speed : float, m/s
+        Fastest any point of any free block moved, sampled at the backend's
+        checks (``|v| + |omega| R``).
+    """
+
+    poses: dict[int, Pose]
+    simulated_seconds: float
+    steps: int
+    at_rest: bool
+    peak_speed: float = 0.0
+
+
+class RestMonitor:
+    """Decides when every block has come to rest (early stop).
+
+    A block is at rest while no point of it moves faster than
+    ``tol.rest_speed``; the run may stop once all blocks have been at rest
+    for ``tol.rest_time`` of simulated time (see ``tol`` for the bound this
+    puts on the motion an early stop can hide). Backends call
+    :meth:`update` every few steps with the blocks' speeds.
+    """
+
+    def __init__(self, radii: np.ndarray, speed: float = tol.rest_speed, window: float = tol.rest_time):
+        self.radii = np.asarray(radii, dtype=float)
+        self.speed = speed
+        self.window = window
+        self.peak = 0.0
+        self._since: float | None = None
+
+    def update(self, t: float, velocity: np.ndarray, angular_velocity: np.ndarray) -> bool:
+        """Record speeds at simulated time ``t``; true once all have rested ``window`` seconds.
+
+        Parameters
+        ----------
+        t : float, seconds
+        velocity, angular_velocity : (n, 3) float, m/s and rad/s
+            Of the n free blocks, in the order of ``radii``.
+        """
+        fastest = np.linalg.norm(velocity, axis=1) + np.linalg.norm(angular_velocity, axis=1) * self.radii
+        self.peak = max(self.peak, float(fastest.max(initial=0.0)))
+        if not np.all(fastest <= self.speed):
+            self._since = None
+            return False
+        if self._since is None:
+            self._since = t
+        return t - self._since >= self.window
+
+
+class SettleBackend(abc.ABC):
+    """A physics engine that settles blocks.
+
+    Subclasses implement :meth:`simulate`; :meth:`check` is a hook that does
+    nothing by default, as optuna's sampler hooks do. Every backend passes the
+    contract suite in ``tests/test_settle_contract.py``.
+
+    Attributes
+    ----------
+    name : str
+        Short name, used in results and on the command line.
+    timestep : float, seconds
+    """
+
+    name: ClassVar[str] = "backend"
+    timestep: float
+
+    def check(self, scene: Scene, bodies: Sequence[SettleBody]) -> None:  # noqa: B027 - a hook
+        """Raise :class:`InputError` if this backend cannot model ``bodies`` in ``scene``."""
+
+    @abc.abstractmethod
+    def simulate(
+        self,
+        scene: Scene,
+        bodies: Sequence[SettleBody],
+        seconds: float,
+        early_stop: bool,
+        progress: Progress | None = None,
+    ) -> Run:
+        """Simulate ``seconds`` of gravity on ``bodies`` standing on ``scene``'s foundation.
+
+        Parameters
+        ----------
+        scene : Scene
+            Its foundation is the ground; its kind says 3D or section.
+        bodies : sequence of SettleBody
+            Free and fixed blocks with their initial poses and velocities.
+        seconds : float
+            Simulated time, seconds.
+        early_stop : bool
+            Stop once a :class:`RestMonitor` over the free blocks says so.
+        progress : callable, optional
+            Called now and then with (simulated seconds, ``seconds``).
+
+        Returns
+        -------
+        Run
+        """
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(timestep={self.timestep:g})"
+
+
+@dataclass(frozen=True)
+class BlockSettle:
+    """How one block fared in a settle.
+
+    Attributes
+    ----------
+    id : int
+    pose : Pose
+        Final pose, block frame to world frame.
+    displacement_m : float, metres
+        Distance its centroid moved.
+    rotation_deg : float, degrees
+        Angle of the rotation from its initial to its final orientation.
+    stable : bool
+        Within the :class:`Thresholds`.
+    movable : bool
+        False for a block held fixed (it cannot move, and counts as stable).
+    """
+
+    id: int
+    pose: Pose
+    displacement_m: float
+    rotation_deg: float
+    stable: bool
+    movable: bool = True
+
+
+@dataclass(frozen=True)
+class SettleResult:
+    """The outcome of a settle.
+
+    Attributes
+    ----------
+    stable : bool
+        Every block is stable (true for an empty layout).
+    blocks : list of BlockSettle
+        One per block, in the order given (installation order).
+    max_displacement_m : float, metres
+    max_rotation_deg : float, degrees
+    seconds : float
+        Wall-clock time of the settle, seconds.
+    simulated_seconds : float
+    steps : int
+    at_rest : bool
+        The run stopped early because every block had come to rest.
+    peak_speed : float, m/s
+        Fastest any point of a free block moved (see :class:`Run`).
+    backend : str
+    thresholds : Thresholds
+    """
+
+    stable: bool
+    blocks: list[BlockSettle]
+    max_displacement_m: float
+    max_rotation_deg: float
+    seconds: float
+    simulated_seconds: float
+    steps: int
+    at_rest: bool
+    peak_speed: float
+    backend: str
+    thresholds: Thresholds = field(default_factory=Thresholds)
+
+    @property
+    def poses(self) -> dict[int, Pose]:
+        """Final pose of every block, by id."""
+        return {b.id: b.pose for b in self.blocks}
+
+    @property
+    def unstable_ids(self) -> list[int]:
+        return [b.id for b in self.blocks if not b.stable]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The keys of ``shoha settle --json`` (CONTRACT.md, "CLI"), and a few more."""
+        return {
+            "stable": self.stable,
+            "max_displacement_m": self.max_displacement_m,
+            "max_rotation_deg": self.max_rotation_deg,
+            "blocks": [
+                {"id": b.id, "displacement_m": b.displacement_m, "rotation_deg": b.rotation_deg,
+                 "stable": b.stable}
+                for b in self.blocks
+            ],
+            "seconds": self.seconds,
+            "simulated_seconds": self.simulated_seconds,
+            "steps": self.steps,
+            "at_rest": self.at_rest,
+            "peak_speed_m_s": self.peak_speed,
+            "backend": self.backend,
+        }
+
+    def summary(self) -> str:
+        """One line for people."""
+        verdict = "stable" if self.stable else f"UNSTABLE ({len(self.unstable_ids)} blocks moved)"
+        return (f"{verdict}: {len(self.blocks)} blocks, max displacement {self.max_displacement_m:.4f} m, "
+                f"max rotation {self.max_rotation_deg:.2f} deg ({self.backend}, "
+                f"{self.simulated_seconds:.2f} s simulated in {self.seconds:.2f} s)")
+
+
+def default_backend(scene: Scene) -> SettleBackend:
+    """The backend a scene's kind calls for: MuJoCo for ``3d``, pymunk for ``section``."""
+    if scene.kind == "section":
+        from .pymunk_backend import PymunkBackend
+
+        return PymunkBackend()
+    from .mujoco_backend import MujocoBackend
+
+    return MujocoBackend()
+
+
+def settle(
+    scene: Scene,
+    placed: Sequence[tuple[int, Block, Pose]],
+    seconds: float = DEFAULT_SECONDS,
+    seed: int | np.random.Generator = 0,
+    backend: SettleBackend | None = None,
+    movable: Collection[int] | None = None,
+    thresholds: Thresholds | None = None,
+    early_stop: bool = True,
+    progress: Progress | None = None,
+) -> SettleResult:
+    """Settle blocks under gravity and judge whether they stand.
+
+    Parameters
+    ----------
+    scene : Scene
+        Its foundation is the ground the blocks stand on.
+    placed : sequence of (id, Block, Pose)
+        The blocks and their initial poses (``Layout.placed()``).
+    seconds : float
+        Simulated time, seconds (0 < seconds <= 60).
+    seed : int or numpy.random.Generator
+        Seeds the small initial kick of each free block (``KICK_SPEED``).
+        The same seed gives a bit-identical result.
+    backend : SettleBackend, optional
+        The physics engine; by default the one the scene's kind calls for.
+    movable : collection of int, optional
+        Ids of the blocks that are free bodies; the others are held fixed.
+        All blocks are free by default.
+    thresholds : Thresholds, optional
+        The stability thresholds; issue 3's by default.
+    early_stop : bool
+        Stop once every free block has come to rest (see ``tol.rest_time``).
+    progress : callable, optional
+        Called now and then with (simulated seconds, ``seconds``).
+
+    Returns
+    -------
+    SettleResult
+
+    Raises
+    ------
+    InputError
+        For bad arguments: duplicate ids, unknown ids in ``movable``, a time
+        out of range, or blocks the backend cannot model.
+    """
+    start = time.perf_counter()
+    thresholds = thresholds if thresholds is not None else Thresholds()
+    if not isinstance(seconds, (int, float)) or not 0 < seconds <= MAX_SECONDS:
+        raise InputError(f"settle time must be in (0, {MAX_SECONDS:g}] seconds, not {seconds!r}")
+    ids = [int(k) for k, _, _ in placed]
+    if len(set(ids)) != len(ids):
+        raise InputError("settle: block ids must be unique")
+    free = set(ids) if movable is None else {int(k) for k in movable}
+    unknown = sorted(free - set(ids))
+    if unknown:
+        raise InputError(f"settle: movable block {unknown[0]} is not in the layout")
+    backend = backend if backend is not None else default_backend(scene)
+    if not isinstance(backend, SettleBackend):
+        raise InputError(f"settle: backend must be a SettleBackend instance, not {type(backend).__name__}")
+
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    bodies = []
+    for key, block, pose in placed:
+        v = w = np.zeros(3)
+        if key in free:
+            # A random direction for the centroid and for the spin, each at
+            # KICK_SPEED (for the spin, at the block's outermost point).
+            v, w = _unit(rng.normal(size=3)), _unit(rng.normal(size=3))
+            v, w = KICK_SPEED * v, KICK_SPEED / block.bounding_radius * w
+        bodies.append(SettleBody(int(key), block, pose, key in free, v, w))
+    backend.check(scene, bodies)
+
+    if any(b.movable for b in bodies):
+        run = backend.simulate(scene, bodies, float(seconds), early_stop, progress)
+    else:
+        run = Run({}, 0.0, 0, True)
+
+    records = []
+    for body in bodies:
+        final = run.poses.get(body.id, body.pose) if body.movable else body.pose
+        displacement = float(np.linalg.norm(final.position - body.pose.position))
+        rotation = float(np.degrees(rotation_between(body.pose.quaternion, final.quaternion)))
+        ok = (displacement <= thresholds.displacement_limit(body.block)
+              and rotation <= thresholds.rotation_deg)
+        records.append(BlockSettle(body.id, final, displacement, rotation, bool(ok), body.movable))
+    return SettleResult(
+        stable=all(r.stable for r in records),
+        blocks=records,
+        max_displacement_m=max((r.displacement_m for r in records), default=0.0),
+        max_rotation_deg=max((r.rotation_deg for r in records), default=0.0),
+        seconds=time.perf_counter() - start,
+        simulated_seconds=run.simulated_seconds,
+        steps=run.steps,
+        at_rest=run.at_rest,
+        peak_speed=run.peak_speed,
+        backend=backend.name,
+        thresholds=thresholds,
+    )
+
+
+def rotation_between(q0: np.ndarray, q1: np.ndarray) -> float:
+    """Angle in radians, in [0, pi], of the rotation taking orientation ``q0`` to ``q1``.
+
+    Both are unit quaternions, scalar first ``[w, x, y, z]``.
+    """
+    conj = np.array([q0[0], -q0[1], -q0[2], -q0[3]])
+    q = quat_multiply(q1, conj)
+    # atan2 keeps full precision for small angles, where arccos(w) loses half
+    # the digits.
+    return float(2 * np.arctan2(np.linalg.norm(q[1:]), abs(q[0])))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
