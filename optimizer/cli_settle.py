@@ -95,7 +95,6 @@ def register(cli: click.Group) -> None:
         """
         from geometry.layout import Layout, Placement, read_layout, write_layout
         from settle import settle
-
         from settle.base import MAX_SECONDS
 
         start = time.perf_counter()
