@@ -95,6 +95,18 @@ class CollisionWorld:
     def __contains__(self, key: int) -> bool:
         return key in self._entries
 
+    def copy(self) -> CollisionWorld:
+        """An independent world sharing the (immutable once placed) block entries.
+
+        Search branches copy worlds; :meth:`move` replaces an entry rather
+        than changing it, so a shared entry is never changed under a copy.
+        """
+        other = CollisionWorld(self.cell)
+        other._entries = dict(self._entries)
+        other._grid = defaultdict(set, {c: set(k) for c, k in self._grid.items() if k})
+        other._max_radius = self._max_radius
+        return other
+
     def _cell_of(self, p: np.ndarray) -> tuple[int, int, int]:
         c = np.floor(p / self.cell).astype(int)
         return int(c[0]), int(c[1]), int(c[2])
@@ -106,13 +118,9 @@ class CollisionWorld:
         self._max_radius = max(self._max_radius, block.bounding_radius)
 
     def move(self, key: int, pose: Pose) -> None:
-        e = self._entries[key]
-        cell = self._cell_of(pose.position)
-        if cell != e.cell:
-            self._grid[e.cell].discard(key)
-            self._grid[cell].add(key)
-            e.cell = cell
-        e.set_pose(pose)
+        block = self._entries[key].block
+        self.remove(key)
+        self.add(key, block, pose)
 
     def remove(self, key: int) -> None:
         e = self._entries.pop(key)

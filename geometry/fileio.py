@@ -64,7 +64,8 @@ def read_json(path: str | os.PathLike) -> Any:
     try:
         return json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+        where = f"line {exc.lineno} column {exc.colno}"
+        raise InputError(f"{path}: malformed JSON at {where}: {exc.msg}") from None
     except ValueError as exc:
         raise InputError(f"{path}: {exc}") from None
     except RecursionError:

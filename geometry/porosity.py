@@ -414,3 +414,12 @@ class PorosityTracker:
 
     def pose(self, key: int) -> Pose:
         return self._blocks[key][1]
+
+    def copy(self) -> PorosityTracker:
+        """An independent tracker in the same state (search branches copy it)."""
+        other = PorosityTracker.__new__(PorosityTracker)
+        other.__dict__.update(self.__dict__)
+        other._blocks = dict(self._blocks)
+        if self.grid is not None:
+            other._count = self._count.copy()
+        return other

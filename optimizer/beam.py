@@ -1,0 +1,263 @@
+"""Beam search: sequential placement in crane order.
+
+Blocks are placed one at a time, each lowered along -z until it first
+touches, so the order is always one a crane can follow: bottom up, never a
+block under one already placed. At each step every partial layout in the
+beam proposes candidates:
+
+* the next few pending sites of the placement pattern (the interlocking
+  lattice, crowns first then level blocks), each as drawn and with a few
+  jittered variants (position and yaw);
+* when no pattern site fits, random "fill" drops over the part of the zone
+  where a block can fit, in any allowed hanging, which find pockets the
+  pattern does not cover. Fill drops are not offered beside pattern sites:
+  they would take the pockets later sites of the pattern need.
+
+A candidate is scored by the documented heuristic::
+
+    gain = inside / V_block                 volume it adds inside the design prism
+           - 0.3 * (z - z_ground) / H        resting high (a later layer) costs a little
+           + 0.1 * min(supports, 3) / 3      resting on several blocks helps
+
+and the beam keeps the ``width`` partial layouts of highest total gain. A
+partial layout ends when it holds the required count or nothing more fits.
+The pattern's origin is chosen first, by a quick pass of pattern sites only
+for several origins.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import Problem, Strategy
+from .build import GROUND, Build, Candidate
+from .drop import Shape
+from .hangings import free, hanging
+
+HEIGHT_COST = 0.3
+SUPPORT_GAIN = 0.1
+
+
+@dataclass
+class _Beam:
+    build: Build
+    score: float
+    used: frozenset[int]
+    done: bool = False
+    idle: int = 0  # consecutive steps with no candidate
+
+
+class ShapeCache:
+    """Shapes by quantised orientation, so repeated hangings are built once."""
+
+    def __init__(self, block):
+        self.block = block
+        self._cache: dict[tuple, Shape] = {}
+
+    def get(self, q: np.ndarray) -> Shape:
+        key = tuple(np.round(q, 12))
+        s = self._cache.get(key)
+        if s is None:
+            s = self._cache[key] = Shape.of(self.block, q)
+        return s
+
+
+class BeamSearch(Strategy):
+    """Sequential placement with a beam of partial layouts.
+
+    Parameters
+    ----------
+    width : int
+        Partial layouts kept per step.
+    lookahead : int
+        Pending pattern sites offered per step.
+    jitter : int
+        Jittered variants per pattern site.
+    fill : int
+        Random fill drops per step while pattern sites remain (four times as
+        many once they are used up).
+    jitter_xy : float, metres
+    jitter_yaw : float, radians
+    origins : int
+        Pattern origins tried before the search.
+    patience : int
+        Fruitless rounds of fill drops before a partial layout is finished.
+    """
+
+    name = "beam"
+
+    def __init__(self, width: int = 4, lookahead: int = 3, jitter: int = 2, fill: int = 4,
+                 jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 12,
+                 patience: int = 4):
+        self.width = width
+        self.lookahead = lookahead
+        self.jitter = jitter
+        self.fill = fill
+        self.jitter_xy = jitter_xy
+        self.jitter_yaw = jitter_yaw
+        self.origins = origins
+        self.patience = patience
+        self._stats: dict[str, float] = {}
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
+
+    # --- candidates ------------------------------------------------------------
+
+    def _window(self, problem: Problem) -> tuple[tuple[float, float], tuple[float, float]]:
+        z = problem.scene.tolerance
+        return (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
+
+    def _fill_window(self, problem: Problem) -> tuple[tuple[float, float], tuple[float, float]]:
+        """Where a block's centroid can lie with the block inside the tolerance zone.
+
+        Its footprint must fit under the slope at half its height and inside
+        the ends: a window narrower than the zone's base, so that fill drops
+        are not wasted on corners no block fits.
+        """
+        z = problem.scene.tolerance
+        h = problem.scene.block.height
+        run = (z.bottom_half_width - z.top_half_width) / z.height
+        half = z.bottom_half_width - run * h / 2 - 0.3 * h
+        inset = 0.45 * h
+        return (-half, half), (z.y_start + inset, z.y_end - inset)
+
+    def _sites(self, problem: Problem, origin: tuple[float, float]) -> list[tuple[str, float, float, float]]:
+        """Pattern sites in crane order: the lattice, then the lattice shifted by half a cell.
+
+        The second pass lands on the first where the first left no room on
+        the ground: the next layer, nested into the pockets of the one below.
+        """
+        xr, yr = self._window(problem)
+        lat = problem.lattice
+        shifted = (origin[0] + lat.w / 2, origin[1] + lat.p / 2)
+        return lat.sites(xr, yr, origin) + lat.sites(xr, yr, shifted)
+
+    def _choose_origin(self, problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
+                       start: Build) -> tuple[float, float]:
+        """The pattern origin whose sites alone place the most volume inside the design prism."""
+        lat = problem.lattice
+        best, best_origin = -1.0, (0.0, 0.0)
+        origins = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
+                                  for _ in range(self.origins - 1)]
+        # Spend at most 15 % of the remaining time choosing the origin.
+        stop = time.monotonic() + 0.15 * max(0.0, problem.time_left())
+        for n, origin in enumerate(origins):
+            if n and time.monotonic() > stop:
+                break
+            b = start.copy()
+            for fam, yaw, x, y in self._sites(problem, origin):
+                if len(b) >= problem.required:
+                    break
+                c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
+                if c is not None:
+                    b.place(c)
+            if b.inside_volume > best:
+                best, best_origin = b.inside_volume, origin
+        return best_origin
+
+    def _gain(self, problem: Problem, c: Candidate) -> float:
+        h = problem.scene.block.height
+        rise = max(0.0, c.pose.position[2] - (-c.shape.lows.min()))
+        supports = len([s for s in c.support if s != GROUND]) + (3 if GROUND in c.support else 0)
+        return (c.inside / problem.scene.block.volume - HEIGHT_COST * rise / h
+                + SUPPORT_GAIN * min(supports, 3) / 3)
+
+    def _proposals(self, problem: Problem, beam: _Beam, sites: list, shapes: ShapeCache,
+                   rng: np.random.Generator) -> tuple[list[tuple[float, Candidate, int | None]], set[int]]:
+        """Candidates for one partial layout, and the pending sites where nothing fits (dead)."""
+        out = []
+        dead: set[int] = set()
+        pending = [i for i in range(len(sites)) if i not in beam.used][: self.lookahead]
+        for i in pending:
+            fam, yaw, x, y = sites[i]
+            c = beam.build.lower(shapes.get(hanging(fam, yaw)), x, y)
+            if c is not None:
+                out.append((self._gain(problem, c), c, i))
+                continue
+            fitted = False
+            # The lattice is tuned to its limit: jitter a site only where it does not fit as
+            # drawn (the slopes and ends), or it would jam the pockets of later sites.
+            for _ in range(self.jitter):
+                vx, vy = x + rng.normal(0, self.jitter_xy), y + rng.normal(0, self.jitter_xy)
+                vyaw = yaw + rng.normal(0, self.jitter_yaw)
+                c = beam.build.lower(shapes.get(hanging(fam, vyaw)), vx, vy)
+                if c is not None:
+                    out.append((self._gain(problem, c), c, i))
+                    fitted = True
+            if not fitted:
+                dead.add(i)
+        if out or len(dead) < len(pending):
+            return out, dead  # the pattern first: fill drops would take the pockets its later sites need
+        if pending:
+            return out, dead  # all pending sites died: move on along the pattern before filling
+        xr, yr = self._fill_window(problem)
+        for _ in range(4 * self.fill):
+            fam = problem.families[int(rng.integers(len(problem.families)))]
+            q = free(rng) if fam == "free" else hanging(fam, float(rng.uniform(0, 2 * np.pi)))
+            x, y = rng.uniform(xr[0], xr[1]), rng.uniform(yr[0], yr[1])
+            c = beam.build.lower(shapes.get(q), float(x), float(y))
+            if c is not None:
+                out.append((self._gain(problem, c), c, None))
+        return out, dead
+
+    # --- search ---------------------------------------------------------------------
+
+    def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
+        start = build.copy() if build is not None else Build(problem.scene)
+        shapes = ShapeCache(problem.scene.block)
+        origin = self._choose_origin(problem, shapes, rng, start)
+        sites = self._sites(problem, origin)
+        beams = [_Beam(start, 0.0, frozenset())]
+        tried = 0
+        while any(not b.done for b in beams) and problem.time_left() > 0:
+            expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []
+            for bi, beam in enumerate(beams):
+                if beam.done:
+                    expanded.append((beam.score, bi, beam, None, None))
+                    continue
+                props, dead = self._proposals(problem, beam, sites, shapes, rng)
+                tried += len(props)
+                if dead:
+                    beam = _Beam(beam.build, beam.score, beam.used | dead, beam.done, beam.idle)
+                if not props:
+                    # Nothing fits. Dead sites are consumed above; once no site remains,
+                    # a few more rounds of fill drops before the layout is finished.
+                    idle = 0 if dead else beam.idle + 1
+                    expanded.append((beam.score, bi, _Beam(beam.build, beam.score, beam.used,
+                                                           idle >= self.patience, idle), None, None))
+                    continue
+                for gain, c, site in props:
+                    expanded.append((beam.score + gain, bi, beam, c, site))
+            # Keep the best distinct expansions (ties broken by order: deterministic).
+            expanded.sort(key=lambda e: (-e[0], e[1]))
+            nxt: list[_Beam] = []
+            seen: set[tuple] = set()
+            for score, _, beam, c, site in expanded:
+                if len(nxt) >= self.width:
+                    break
+                if c is None:
+                    key = ("keep", id(beam.build), len(beam.used), beam.idle)
+                    if key in seen:
+                        continue
+                    seen.add(key)
+                    nxt.append(beam)
+                    continue
+                key = (id(beam), tuple(np.round(c.pose.position, 3)))
+                if key in seen:
+                    continue
+                seen.add(key)
+                b = beam.build.copy()
+                b.place(c)
+                used = beam.used | ({site} if site is not None else set())
+                nxt.append(_Beam(b, score, used, len(b) >= problem.required))
+            beams = nxt
+            best = max(beams, key=lambda b: (len(b.build), b.score))
+            problem.tell(self.name, best.build, f"{len(best.build)} placed")
+        best = max(beams, key=lambda b: (len(b.build), b.build.inside_volume))
+        self._stats = {"candidates": float(tried), "origin_x": origin[0], "origin_y": origin[1]}
+        return best.build

@@ -1,0 +1,203 @@
+"""A layout under construction, with every incremental structure over it.
+
+The search strategies grow, change and copy :class:`Build` objects. A build
+keeps, for its placed blocks in crane order:
+
+* a :class:`~optimizer.drop.DropWorld`, to lower new blocks until they touch;
+* a :class:`~geometry.collision.CollisionWorld` (python-fcl), which confirms
+  every placement and every move against the neighbours only;
+* an exact :class:`~geometry.porosity.PorosityTracker` (the shared porosity
+  module), updated per block;
+* the support graph: which blocks each block rests on, so that a block with
+  others resting on it is never moved from under them.
+
+Copying a build shares the immutable per-block entries, so a beam of a few
+builds costs little more than one.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry.blocks import Block
+from geometry.clip import volume_inside
+from geometry.collision import CollisionWorld
+from geometry.constants import tol
+from geometry.layout import Layout, Placement
+from geometry.porosity import PorosityTracker
+from geometry.pose import Pose
+from geometry.scene import Scene
+
+from .drop import DropWorld, Shape
+
+#: The ground, as a support key.
+GROUND = -1
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A block lowered to first contact at one horizontal position.
+
+    Attributes
+    ----------
+    shape : Shape
+        The block in its hanging orientation.
+    pose : Pose
+        Where it rests.
+    support : tuple of int
+        What it rests on (``GROUND`` for the foundation).
+    inside : float, m^3
+        Its volume inside the design prism.
+    """
+
+    shape: Shape
+    pose: Pose
+    support: tuple[int, ...]
+    inside: float
+
+
+class Build:
+    """Placed blocks in crane order, and the structures that score them.
+
+    Parameters
+    ----------
+    scene : Scene
+    """
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self.block: Block = scene.block
+        cell = 2.0 * self.block.bounding_radius
+        self.drops = DropWorld(scene.foundation, cell=cell)
+        self.collide = CollisionWorld(cell=cell)
+        self.porosity = PorosityTracker(scene, "exact")
+        self.order: list[int] = []
+        self.shapes: dict[int, Shape] = {}
+        self.poses: dict[int, Pose] = {}
+        self.supports: dict[int, tuple[int, ...]] = {}
+        self.carried: dict[int, set[int]] = {}
+        self.next_key = 0
+        self._zone = scene.tolerance.polytope
+        self._design = scene.design.polytope
+
+    def __len__(self) -> int:
+        return len(self.order)
+
+    def copy(self) -> Build:
+        other = Build.__new__(Build)
+        other.__dict__.update(self.__dict__)
+        other.drops = self.drops.copy()
+        other.collide = self.collide.copy()
+        other.porosity = self.porosity.copy()
+        other.order = list(self.order)
+        other.shapes = dict(self.shapes)
+        other.poses = dict(self.poses)
+        other.supports = dict(self.supports)
+        other.carried = {k: set(v) for k, v in self.carried.items()}
+        return other
+
+    # --- proposing ---------------------------------------------------------------
+
+    def lower(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset()
+              ) -> Candidate | None:
+        """Lower ``shape`` at (x, y) until it touches; None if it ends out of tolerance.
+
+        The exact first-contact height comes from the drop world; FCL then
+        confirms that the resting block penetrates no neighbour.
+        """
+        z, support, on_ground = self.drops.drop(shape, x, y, exclude)
+        pose = Pose([x, y, z], shape.quaternion)
+        world = pose.apply(self.block.vertices)
+        # The tolerance zone is convex: the block is inside iff its vertices are.
+        if not self._zone.contains(world).all():
+            return None
+        if self.collide.query(self.block, pose, exclude=exclude, threshold=-1.0, first=True):
+            return None  # pragma: no cover - the exact drop leaves a gap; FCL is the referee
+        keys = tuple(support) + ((GROUND,) if on_ground else ())
+        return Candidate(shape, pose, keys, volume_inside(self.block, pose, self._design))
+
+    # --- changing ----------------------------------------------------------------
+
+    def place(self, c: Candidate) -> int:
+        """Add a candidate as the next block in crane order; returns its key."""
+        key = self.next_key
+        self.next_key += 1
+        self.order.append(key)
+        self._insert(key, c)
+        return key
+
+    def _insert(self, key: int, c: Candidate) -> None:
+        self.shapes[key] = c.shape
+        self.poses[key] = c.pose
+        self.supports[key] = c.support
+        self.carried[key] = set()
+        for s in c.support:
+            if s != GROUND:
+                self.carried[s].add(key)
+        self.drops.add(key, c.shape, c.pose.position)
+        self.collide.add(key, self.block, c.pose)
+        self.porosity.add(key, self.block, c.pose)
+
+    def remove(self, key: int) -> None:
+        """Take a block out; it must carry nothing."""
+        if self.carried[key]:
+            raise ValueError(f"block {key} carries {sorted(self.carried[key])}")
+        self._delete(key)
+        self.order.remove(key)
+
+    def _delete(self, key: int) -> None:
+        for s in self.supports.pop(key):
+            if s != GROUND:
+                self.carried[s].discard(key)
+        del self.carried[key], self.shapes[key], self.poses[key]
+        self.drops.remove(key)
+        self.collide.remove(key)
+        self.porosity.remove(key)
+
+    def replace(self, key: int, c: Candidate) -> None:
+        """Move a block that carries nothing to a new resting pose, keeping its place in order.
+
+        The crane order stays valid only if the block still rests on blocks
+        placed before it; callers check that with :meth:`order_ok`.
+        """
+        carried = self.carried[key]
+        if carried:
+            raise ValueError(f"block {key} carries {sorted(carried)}")
+        self._delete(key)
+        self._insert(key, c)
+
+    def order_ok(self, key: int, support: tuple[int, ...]) -> bool:
+        """Whether ``key`` may rest on ``support``: all of them placed before it."""
+        rank = {k: i for i, k in enumerate(self.order)}
+        mine = rank.get(key, len(self.order))
+        return all(s == GROUND or rank[s] < mine for s in support)
+
+    # --- reading ---------------------------------------------------------------------
+
+    def free_keys(self) -> list[int]:
+        """Blocks with nothing resting on them: the ones that may move."""
+        return [k for k in self.order if not self.carried[k]]
+
+    @property
+    def inside_volume(self) -> float:
+        return self.porosity.filled
+
+    def placed(self) -> list[tuple[int, Block, Pose]]:
+        return [(k, self.block, self.poses[k]) for k in self.order]
+
+    def layout(self, extra: dict | None = None) -> Layout:
+        """The build as a layout: ids 0..n-1 in crane order."""
+        blocks = [Placement(i, self.scene.block_type, self.poses[k]) for i, k in enumerate(self.order)]
+        return Layout(self.scene.name, blocks, dict(extra or {}))
+
+    def heights(self) -> np.ndarray:
+        return np.array([self.poses[k].position[2] for k in self.order])
+
+
+def resting_gap(build: Build, key: int) -> float:
+    """Vertical gap (m) under a placed block: how far it could still be lowered."""
+    shape, pose = build.shapes[key], build.poses[key]
+    z, _, _ = build.drops.drop(shape, pose.position[0], pose.position[1], exclude=frozenset({key}))
+    return float(pose.position[2] - z + tol.drop_resolution)

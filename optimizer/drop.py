@@ -1,0 +1,223 @@
+"""Lowering a block along -z until it first touches, as a crane lowers it.
+
+The resting height of a block lowered from above onto what is already placed
+is decided piece by piece. For a moving convex piece P and a placed convex
+piece Q, the block must rise above ``top_Q(x, y) - bottom_P(x, y)`` on every
+vertical line through both. That difference is concave over the overlap of
+their footprints (top_Q is concave, bottom_P convex), so its maximum lies on a
+vertex of the arrangement of their projected edges: a projected vertex of
+either piece, or a crossing of a projected edge of each. Evaluating the exact
+vertical extent of both pieces at those points
+(:func:`geometry.polytope.column_intervals`) gives the first-contact height
+exactly, with no stepping. Pairs are visited in order of their best possible
+height and the search stops once no pair can beat the height found.
+
+The foundation is the plane z = 0, or a rough height field sampled at its
+nodes and at the block's lower vertices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from geometry.blocks import Block
+from geometry.constants import tol
+from geometry.polytope import ConvexPolytope, column_intervals
+from geometry.pose import Pose, quat_to_matrix
+from geometry.scene import Foundation
+
+
+@dataclass(frozen=True, eq=False)
+class Shape:
+    """A block's pieces turned to one orientation, positioned at the origin.
+
+    Attributes
+    ----------
+    quaternion : (4,) float
+    pieces : list of ConvexPolytope, world orientation, block centroid at the origin
+    lows : (k,) float, metres: lowest z of each piece
+    highs : (k,) float, metres: highest z of each piece
+    xy_boxes : (k, 2, 2) float, metres: footprint boxes of the pieces
+    radius_xy : float, metres: footprint radius about the centroid
+    """
+
+    block: Block
+    quaternion: np.ndarray
+    pieces: list[ConvexPolytope]
+    lows: np.ndarray
+    highs: np.ndarray
+    xy_boxes: np.ndarray
+    radius_xy: float
+    edges: list[np.ndarray] = field(repr=False)
+
+    @classmethod
+    def of(cls, block: Block, quaternion: np.ndarray) -> Shape:
+        r = quat_to_matrix(quaternion)
+        pieces = [p.transformed(r, np.zeros(3)) for p in block.pieces]
+        lows = np.array([p.vertices[:, 2].min() for p in pieces])
+        highs = np.array([p.vertices[:, 2].max() for p in pieces])
+        boxes = np.array([[p.vertices[:, :2].min(axis=0), p.vertices[:, :2].max(axis=0)] for p in pieces])
+        radius = max(float(np.linalg.norm(p.vertices[:, :2], axis=1).max()) for p in pieces)
+        edges = [p.vertices[p.edges] for p in pieces]  # (e, 2, 3) each
+        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, edges)
+
+
+def _segment_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Crossing points, in the x-y plane, of segments ``a`` (n, 2, 2) and ``b`` (m, 2, 2)."""
+    p, r = a[:, None, 0, :], (a[:, 1] - a[:, 0])[:, None, :]
+    q, s = b[None, :, 0, :], (b[:, 1] - b[:, 0])[None, :, :]
+    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
+    qp = q - p
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
+        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
+    ok = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    ii, jj = np.nonzero(ok)
+    return p[ii, 0] + t[ii, jj, None] * r[ii, 0]
+
+
+def rest_height(moving: ConvexPolytope, moving_edges: np.ndarray, fixed: ConvexPolytope,
+                fixed_edges: np.ndarray, offset_xy: np.ndarray) -> float:
+    """Lowest height ``z`` at which ``moving + (offset_xy, z)`` clears ``fixed``.
+
+    Returns ``-inf`` when their footprints do not overlap (lowering never
+    meets). ``moving`` is given with its reference point at the origin.
+    """
+    mv = moving.vertices[:, :2] + offset_xy
+    me = moving_edges[:, :, :2] + offset_xy
+    pts = np.concatenate([mv, fixed.vertices[:, :2], _segment_crossings(me, fixed_edges[:, :, :2])])
+    # Vertical extents of both pieces on these lines; the moving one back at the origin.
+    q_lo, q_hi = column_intervals(fixed.normals, fixed.offsets, pts)
+    p_lo, p_hi = column_intervals(moving.normals, moving.offsets, pts - offset_xy)
+    slack = 1e-9
+    ok = (q_hi >= q_lo - slack) & (p_hi >= p_lo - slack)
+    if not ok.any():
+        return -np.inf
+    return float(np.max(q_hi[ok] - p_lo[ok]))
+
+
+class DropWorld:
+    """Placed blocks and the ground, for lowering new blocks onto them.
+
+    Parameters
+    ----------
+    foundation : Foundation
+    cell : float, metres
+        Horizontal hash cell for finding blocks under a footprint.
+    """
+
+    def __init__(self, foundation: Foundation, cell: float = 2.0):
+        self.foundation = foundation
+        self.cell = cell
+        self._placed: dict[int, tuple[Shape, np.ndarray, list[ConvexPolytope], list[np.ndarray]]] = {}
+        self._grid: dict[tuple[int, int], set[int]] = {}
+        self._max_r = 0.0
+
+    def __len__(self) -> int:
+        return len(self._placed)
+
+    def _cells(self, x: float, y: float, r: float) -> list[tuple[int, int]]:
+        c = self.cell
+        return [(i, j) for i in range(int(np.floor((x - r) / c)), int(np.floor((x + r) / c)) + 1)
+                for j in range(int(np.floor((y - r) / c)), int(np.floor((y + r) / c)) + 1)]
+
+    def add(self, key: int, shape: Shape, position: np.ndarray) -> None:
+        position = np.asarray(position, dtype=float)
+        pieces = [ConvexPolytope(p.vertices + position, p.faces, p.normals, p.offsets + p.normals @ position)
+                  for p in shape.pieces]
+        edges = [e + position for e in shape.edges]
+        self._placed[key] = (shape, position, pieces, edges)
+        for cell in self._cells(position[0], position[1], shape.radius_xy):
+            self._grid.setdefault(cell, set()).add(key)
+        self._max_r = max(self._max_r, shape.radius_xy)
+
+    def remove(self, key: int) -> None:
+        shape, position, _, _ = self._placed.pop(key)
+        for cell in self._cells(position[0], position[1], shape.radius_xy):
+            self._grid[cell].discard(key)
+
+    def copy(self) -> DropWorld:
+        """An independent world sharing the immutable placed entries."""
+        other = DropWorld(self.foundation, self.cell)
+        other._placed = dict(self._placed)
+        other._grid = {c: set(k) for c, k in self._grid.items() if k}
+        other._max_r = self._max_r
+        return other
+
+    def under(self, x: float, y: float, r: float, exclude: frozenset[int] = frozenset()) -> list[int]:
+        """Keys of blocks whose footprint circles reach within ``r`` of (x, y)."""
+        keys: set[int] = set()
+        for cell in self._cells(x, y, r):
+            keys |= self._grid.get(cell, set())
+        out = []
+        for k in keys - exclude:
+            shape, pos, _, _ = self._placed[k]
+            if (pos[0] - x) ** 2 + (pos[1] - y) ** 2 <= (r + shape.radius_xy) ** 2:
+                out.append(k)
+        return out
+
+    def ground_height(self, shape: Shape, x: float, y: float) -> float:
+        """Lowest centroid height at which the shape clears the foundation."""
+        if self.foundation.kind != "rough":
+            return float(-shape.lows.min())
+        f = self.foundation
+        best = -np.inf
+        for p in shape.pieces:
+            lo_xy = p.vertices[:, :2].min(axis=0) + (x, y)
+            hi_xy = p.vertices[:, :2].max(axis=0) + (x, y)
+            xs, ys, _ = f.grid
+            nodes = np.array([(u, v) for u in xs[(xs >= lo_xy[0]) & (xs <= hi_xy[0])]
+                              for v in ys[(ys >= lo_xy[1]) & (ys <= hi_xy[1])]]).reshape(-1, 2)
+            # Height field at the piece's vertices and at the field's nodes under it.
+            pts = np.concatenate([p.vertices[:, :2] + (x, y), nodes])
+            lo, hi = column_intervals(p.normals, p.offsets, pts - (x, y))
+            ok = hi >= lo - 1e-9
+            if ok.any():
+                best = max(best, float(np.max(f.height_at(pts[ok]) - lo[ok])))
+        return best
+
+    def drop(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset()
+             ) -> tuple[float, list[int], bool]:
+        """Lower ``shape`` at (x, y) from above until it first touches.
+
+        Returns
+        -------
+        z : float, metres
+            Centroid height at first contact, raised by ``tol.drop_resolution``
+            so that it rests a hair above what it touches.
+        support : list of int
+            Keys of the blocks it touches at that height.
+        on_ground : bool
+            Whether it touches the foundation.
+        """
+        offset = np.array([x, y])
+        ground = self.ground_height(shape, x, y)
+        best = ground
+        pairs = []
+        for k in self.under(x, y, shape.radius_xy, exclude):
+            _, _, pieces, edges = self._placed[k]
+            for i in range(len(shape.pieces)):
+                mb = shape.xy_boxes[i] + offset
+                for fp, fe in zip(pieces, edges, strict=True):
+                    fb = fp.aabb
+                    if (mb[0, 0] > fb[1, 0] or fb[0, 0] > mb[1, 0]
+                            or mb[0, 1] > fb[1, 1] or fb[0, 1] > mb[1, 1]):
+                        continue
+                    # No placement can rise above this pair's top minus bottom.
+                    pairs.append((fb[1, 2] - shape.lows[i], k, i, fp, fe))
+        pairs.sort(key=lambda p: -p[0])
+        heights: list[tuple[float, int]] = []
+        for bound, k, i, fp, fe in pairs:
+            if bound < best - tol.drop_resolution:
+                break
+            z = rest_height(shape.pieces[i], shape.edges[i], fp, fe, offset)
+            if z > -np.inf:
+                heights.append((z, k))
+                best = max(best, z)
+        support = sorted({k for z, k in heights if z >= best - tol.drop_resolution})
+        return best + tol.drop_resolution, support, ground >= best - tol.drop_resolution
+
+    def pose(self, shape: Shape, x: float, y: float, z: float) -> Pose:
+        return Pose([x, y, z], shape.quaternion)
