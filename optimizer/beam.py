@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,13 +87,29 @@ class BeamSearch(Strategy):
         Pattern origins tried before the search.
     patience : int
         Fruitless rounds of fill drops before a partial layout is finished.
+    accept : callable, optional
+        ``accept(problem, build, candidate) -> bool``, an extra test every
+        candidate must pass (``optimizer.physics.raised_check``: a local settle
+        of blocks that rest on other blocks).
+    origin : (float, float), optional
+        Pattern origin; by default several are ranked by a quick pass of the
+        pattern's sites alone, and the search restarts from the best ones.
+    restarts : int
+        Searches from the best-ranked origins, as time allows.
+    share : float
+        Fraction of the time left that the beam may use.
+    judge : callable, optional
+        ``judge(problem, build) -> bool``: whether a finished build stands
+        (``optimizer.physics.stands``); restarts that stand rank first.
     """
 
     name = "beam"
 
     def __init__(self, width: int = 4, lookahead: int = 3, jitter: int = 2, fill: int = 4,
                  jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 12,
-                 patience: int = 4):
+                 patience: int = 4, accept: Callable[[Problem, Build, Candidate], bool] | None = None,
+                 origin: tuple[float, float] | None = None, restarts: int = 4, share: float = 0.6,
+                 judge: Callable[[Problem, Build], bool] | None = None):
         self.width = width
         self.lookahead = lookahead
         self.jitter = jitter
@@ -101,6 +118,11 @@ class BeamSearch(Strategy):
         self.jitter_yaw = jitter_yaw
         self.origins = origins
         self.patience = patience
+        self.accept = accept
+        self.origin = origin
+        self.restarts = restarts
+        self.share = share
+        self.judge = judge
         self._stats: dict[str, float] = {}
 
     def stats(self) -> dict[str, float]:
@@ -137,15 +159,13 @@ class BeamSearch(Strategy):
         shifted = (origin[0] + lat.w / 2, origin[1] + lat.p / 2)
         return lat.sites(xr, yr, origin) + lat.sites(xr, yr, shifted)
 
-    def _choose_origin(self, problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
-                       start: Build) -> tuple[float, float]:
-        """The pattern origin whose sites alone place the most volume inside the design prism."""
+    def _rank_origins(self, problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
+                      start: Build, stop: float) -> list[tuple[float, float]]:
+        """Pattern origins, best first: by the volume their sites alone place in the design prism."""
         lat = problem.lattice
-        best, best_origin = -1.0, (0.0, 0.0)
         origins = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
                                   for _ in range(self.origins - 1)]
-        # Spend at most 15 % of the remaining time choosing the origin.
-        stop = time.monotonic() + 0.15 * max(0.0, problem.time_left())
+        scored = []
         for n, origin in enumerate(origins):
             if n and time.monotonic() > stop:
                 break
@@ -156,9 +176,15 @@ class BeamSearch(Strategy):
                 c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
                 if c is not None:
                     b.place(c)
-            if b.inside_volume > best:
-                best, best_origin = b.inside_volume, origin
-        return best_origin
+            scored.append((-b.inside_volume, n, origin))
+        scored.sort()
+        return [o for _, _, o in scored]
+
+    def _lower(self, problem: Problem, build: Build, shape: Shape, x: float, y: float) -> Candidate | None:
+        c = build.lower(shape, x, y)
+        if c is not None and self.accept is not None and not self.accept(problem, build, c):
+            return None
+        return c
 
     def _gain(self, problem: Problem, c: Candidate) -> float:
         h = problem.scene.block.height
@@ -175,7 +201,7 @@ class BeamSearch(Strategy):
         pending = [i for i in range(len(sites)) if i not in beam.used][: self.lookahead]
         for i in pending:
             fam, yaw, x, y = sites[i]
-            c = beam.build.lower(shapes.get(hanging(fam, yaw)), x, y)
+            c = self._lower(problem, beam.build, shapes.get(hanging(fam, yaw)), x, y)
             if c is not None:
                 out.append((self._gain(problem, c), c, i))
                 continue
@@ -185,7 +211,7 @@ class BeamSearch(Strategy):
             for _ in range(self.jitter):
                 vx, vy = x + rng.normal(0, self.jitter_xy), y + rng.normal(0, self.jitter_xy)
                 vyaw = yaw + rng.normal(0, self.jitter_yaw)
-                c = beam.build.lower(shapes.get(hanging(fam, vyaw)), vx, vy)
+                c = self._lower(problem, beam.build, shapes.get(hanging(fam, vyaw)), vx, vy)
                 if c is not None:
                     out.append((self._gain(problem, c), c, i))
                     fitted = True
@@ -200,7 +226,7 @@ class BeamSearch(Strategy):
             fam = problem.families[int(rng.integers(len(problem.families)))]
             q = free(rng) if fam == "free" else hanging(fam, float(rng.uniform(0, 2 * np.pi)))
             x, y = rng.uniform(xr[0], xr[1]), rng.uniform(yr[0], yr[1])
-            c = beam.build.lower(shapes.get(q), float(x), float(y))
+            c = self._lower(problem, beam.build, shapes.get(q), float(x), float(y))
             if c is not None:
                 out.append((self._gain(problem, c), c, None))
         return out, dead
@@ -210,11 +236,41 @@ class BeamSearch(Strategy):
     def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
         start = build.copy() if build is not None else Build(problem.scene)
         shapes = ShapeCache(problem.scene.block)
-        origin = self._choose_origin(problem, shapes, rng, start)
+        t0 = time.monotonic()
+        # The beam's share of the time left; the rest is for the strategies after it.
+        end = t0 + self.share * max(0.0, problem.time_left())
+        if self.origin is not None:
+            origins = [self.origin]
+        else:
+            origins = self._rank_origins(problem, shapes, rng, start, t0 + 0.15 * (end - t0))
+        best: tuple | None = None
+        tried = 0
+        runs = 0
+        for n, origin in enumerate(origins[: self.restarts]):
+            now = time.monotonic()
+            if n and (now > end or (now - t0) / n > end - now):
+                break  # another restart would not finish in time
+            result, count = self._search(problem, start, origin, shapes, rng, end)
+            tried += count
+            runs += 1
+            stands = self.judge(problem, result) if self.judge is not None else True
+            key = (-len(result), not stands, abs(result.porosity.percent - problem.target), n)
+            if best is None or key < best[0]:
+                best = (key, result, origin)
+            problem.tell(self.name, best[1], f"restart {n + 1}: {len(result)} placed")
+        assert best is not None
+        _, result, origin = best
+        self._stats = {"candidates": float(tried), "restarts": float(runs),
+                       "origin_x": origin[0], "origin_y": origin[1]}
+        return result
+
+    def _search(self, problem: Problem, start: Build, origin: tuple[float, float], shapes: ShapeCache,
+                rng: np.random.Generator, end: float) -> tuple[Build, int]:
+        """One beam search from one pattern origin; returns the best build and candidates tried."""
         sites = self._sites(problem, origin)
         beams = [_Beam(start, 0.0, frozenset())]
         tried = 0
-        while any(not b.done for b in beams) and problem.time_left() > 0:
+        while any(not b.done for b in beams) and time.monotonic() < end:
             expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []
             for bi, beam in enumerate(beams):
                 if beam.done:
@@ -256,8 +312,7 @@ class BeamSearch(Strategy):
                 used = beam.used | ({site} if site is not None else set())
                 nxt.append(_Beam(b, score, used, len(b) >= problem.required))
             beams = nxt
-            best = max(beams, key=lambda b: (len(b.build), b.score))
-            problem.tell(self.name, best.build, f"{len(best.build)} placed")
-        best = max(beams, key=lambda b: (len(b.build), b.build.inside_volume))
-        self._stats = {"candidates": float(tried), "origin_x": origin[0], "origin_y": origin[1]}
-        return best.build
+            lead = max(beams, key=lambda b: (len(b.build), b.score))
+            problem.tell(self.name, lead.build, f"{len(lead.build)} placed")
+        final = max(beams, key=lambda b: (len(b.build), b.build.inside_volume))
+        return final.build, tried

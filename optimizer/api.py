@@ -1,0 +1,193 @@
+"""``optimize``: the one public entry point of the placement search.
+
+::
+
+    from optimizer.api import optimize
+    result = optimize(load_scene("mini"), seed=1, time_limit=120)
+    result.layout         # shoha-layout/1, crane order
+    result.to_dict()      # the CONTRACT keys of `shoha optimize --json`
+
+The pipeline, each step a pluggable strategy instance:
+
+1. beam search builds a layout in crane order from the placement pattern;
+2. simulated annealing refines it (porosity towards the target, evenness,
+   support), and tries to add blocks where the count fell short;
+3. CP-SAT solves the bottom layer exactly over a discretised candidate set
+   and reports its bound beside the heuristic's result (optimality gap);
+4. a physics settle confirms that the layout stands; unstable blocks are
+   repaired (taken out, with whatever rests on them, and placed again) and
+   the layout is settled again.
+
+Validity is never loosened: if the required count cannot be reached, the best
+valid layout found is returned with the count it reached.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from geometry.checks import check_layout
+from geometry.layout import Layout
+from geometry.scene import Scene
+
+from .base import Problem, Strategy
+from .build import Build
+from .patterns import InterlockLattice, lattice_for
+
+
+@dataclass
+class OptimizeResult:
+    """What ``optimize`` found, and how it checks.
+
+    Attributes
+    ----------
+    layout : Layout
+        Blocks in crane order, ids ``0..n-1``.
+    porosity_percent : float
+        Exact porosity of the design prism.
+    blocks, required_blocks : int
+    collisions : int
+        Interpenetrating pairs (FCL, deeper than the contact tolerance).
+    out_of_tolerance : int
+        Blocks with volume outside the tolerance zone.
+    stable : bool or None
+        Physics verdict (None when settle was skipped).
+    seconds : float
+    phases : list of dict
+        Per strategy: name, seconds, blocks and porosity after it, and its stats.
+    gap : dict
+        The CP-SAT bound beside the heuristic's result, where CP-SAT ran.
+    """
+
+    layout: Layout
+    porosity_percent: float
+    blocks: int
+    required_blocks: int
+    target_porosity_percent: float
+    collisions: int
+    out_of_tolerance: int
+    stable: bool | None
+    seconds: float
+    settle: dict[str, Any] = field(default_factory=dict)
+    phases: list[dict[str, Any]] = field(default_factory=list)
+    gap: dict[str, Any] = field(default_factory=dict)
+    path: str | None = None
+
+    @property
+    def valid(self) -> bool:
+        return (self.blocks == self.required_blocks and self.collisions == 0
+                and self.out_of_tolerance == 0 and self.stable is not False)
+
+    def summary(self) -> str:
+        """The result in plain words."""
+        if self.blocks < self.required_blocks:
+            head = (f"{self.required_blocks} required, {self.blocks} fit: "
+                    f"porosity {self.porosity_percent:.1f}%")
+        else:
+            head = (f"{self.blocks} blocks, porosity {self.porosity_percent:.2f}% "
+                    f"(target {self.target_porosity_percent:g}%)")
+        verdict = {True: "stable", False: "NOT stable", None: "not settled"}[self.stable]
+        return (f"{head}; {self.collisions} collisions, {self.out_of_tolerance} out of tolerance, "
+                f"{verdict}; {self.seconds:.1f} s")
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "porosity_percent": self.porosity_percent,
+            "blocks": self.blocks,
+            "required_blocks": self.required_blocks,
+            "target_porosity_percent": self.target_porosity_percent,
+            "collisions": self.collisions,
+            "out_of_tolerance": self.out_of_tolerance,
+            "stable": self.stable,
+            "seconds": self.seconds,
+            "path": self.path,
+            "valid": self.valid,
+            "settle": self.settle,
+            "phases": self.phases,
+            "gap": self.gap,
+        }
+
+
+def default_strategies() -> list[Strategy]:
+    from .beam import BeamSearch
+    from .physics import raised_check, stands
+
+    return [BeamSearch(accept=raised_check, judge=stands)]
+
+
+def optimize(
+    scene: Scene,
+    seed: int = 0,
+    time_limit: float = 120.0,
+    strategies: Sequence[Strategy] | None = None,
+    lattice: InterlockLattice | None = None,
+    settle_layout: bool = True,
+    report: Callable[[str, Build, str], None] | None = None,
+) -> OptimizeResult:
+    """Find a reference layout for ``scene``.
+
+    Parameters
+    ----------
+    scene : Scene
+    seed : int
+        All randomness comes from ``numpy.random.default_rng(seed)``; the same
+        seed gives the same layout, byte for byte.
+    time_limit : float, seconds
+        Wall-clock budget for the search; the best valid layout found so far
+        is returned when it runs out.
+    strategies : sequence of Strategy, optional
+        Run in order, each improving the previous one's build.
+    lattice : InterlockLattice, optional
+        Placement pattern; the block type's tuned lattice by default.
+    settle_layout : bool
+        Confirm (and repair) with a physics settle.
+    report : callable, optional
+        ``report(phase, build, message)`` for a progress display.
+    """
+    start = time.monotonic()
+    rng = np.random.default_rng(seed)
+    problem = Problem(
+        scene=scene,
+        required=scene.required_blocks,
+        target=scene.target_porosity,
+        lattice=lattice or lattice_for(scene.block, scene.block_type),
+        deadline=start + time_limit,
+        report=report,
+    )
+    build: Build | None = None
+    phases = []
+    for strategy in strategies if strategies is not None else default_strategies():
+        t0 = time.monotonic()
+        build = strategy.run(problem, build, rng)
+        phases.append({"strategy": strategy.name, "seconds": time.monotonic() - t0, "blocks": len(build),
+                       "porosity_percent": build.porosity.percent, **strategy.stats()})
+    if build is None:
+        build = Build(scene)
+    settle_info: dict[str, Any] = {}
+    stable: bool | None = None
+    if settle_layout:
+        from .physics import confirm
+
+        origin = next(((p["origin_x"], p["origin_y"]) for p in phases if "origin_x" in p), None)
+        build, settle_info = confirm(problem, build, rng, origin)
+        stable = settle_info["stable"]
+    layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed}})
+    report_ = check_layout(scene, layout.placed())
+    return OptimizeResult(
+        layout=layout,
+        porosity_percent=report_.porosity_percent,
+        blocks=report_.blocks,
+        required_blocks=scene.required_blocks,
+        target_porosity_percent=scene.target_porosity,
+        collisions=len(report_.collisions),
+        out_of_tolerance=len(report_.out_of_tolerance),
+        stable=stable,
+        seconds=time.monotonic() - start,
+        settle=settle_info,
+        phases=phases,
+    )
