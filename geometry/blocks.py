@@ -24,7 +24,7 @@ from __future__ import annotations
 import hashlib
 import os
 from dataclasses import dataclass
-from functools import cached_property, lru_cache
+from functools import cache, cached_property, lru_cache
 from pathlib import Path
 
 import manifold3d as m3
@@ -223,7 +223,7 @@ def _union_of_hulls(pieces: list[np.ndarray]) -> m3.Manifold:
     return m3.Manifold.batch_boolean([m3.Manifold.hull_points(p) for p in pieces], m3.OpType.Add)
 
 
-@lru_cache(maxsize=None)
+@cache
 def shake_fit() -> tuple[float, float]:
     """Fitted ``(R, leg_length)`` of the Shake Block model (R in m, leg length in R)."""
 
@@ -237,7 +237,7 @@ def shake_fit() -> tuple[float, float]:
     return (SHAKE_4T_VOLUME / unit_volume) ** (1.0 / 3.0), leg
 
 
-@lru_cache(maxsize=None)
+@cache
 def shake_block() -> Block:
     """The ``shake-4t`` block: volume 1.735 m^3 and area 9.796 m^2 (Table I)."""
     radius, leg = shake_fit()
@@ -254,7 +254,7 @@ _TETRAPOD_TAPER = np.radians(10.0)
 _TETRAPOD_SIDES = 12  # a 12-gon keeps each leg a small convex piece for FCL
 
 
-@lru_cache(maxsize=None)
+@cache
 def tetrapod(height: float = 2.0) -> Block:
     """A tetrapod of standing height ``height`` metres.
 
@@ -282,7 +282,7 @@ def tetrapod(height: float = 2.0) -> Block:
 # --- box -------------------------------------------------------------------------
 
 
-@lru_cache(maxsize=None)
+@cache
 def box_block(a: float, b: float, c: float) -> Block:
     """A rectangular block of ``a`` x ``b`` x ``c`` metres along local x, y, z."""
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
