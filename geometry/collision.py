@@ -4,7 +4,11 @@ Each block is a set of convex pieces, each an ``fcl.Convex``. The broadphase
 is ours, not FCL's: python-fcl's manager calls back with fresh wrapper objects
 that cannot be traced to their block, so blocks are hashed into a uniform grid
 of cells by centre, and pairs are pruned by bounding sphere and then by piece
-bounding box before FCL's narrow phase (GJK/EPA) runs on piece pairs.
+bounding box before FCL's narrow phase (GJK/EPA) runs on piece pairs. A
+whole-world search (:meth:`CollisionWorld.pairs`) does both prunings for all
+pairs at once with a k-d tree and numpy, and FCL objects are built only for
+pieces that reach the narrow phase: in a packed, collision-free layout most
+never do.
 
 The world is incremental: the optimizer adds, moves and removes one block at
 a time and queries only that block against its neighbours.
@@ -19,6 +23,7 @@ from dataclasses import dataclass
 
 import fcl
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .blocks import Block
 from .constants import tol
@@ -35,6 +40,7 @@ class Collision:
 
 
 _GEOMETRY: weakref.WeakKeyDictionary[Block, list[fcl.Convex]] = weakref.WeakKeyDictionary()
+_STACKED: weakref.WeakKeyDictionary[Block, tuple[np.ndarray, np.ndarray]] = weakref.WeakKeyDictionary()
 
 
 def _fcl_pieces(block: Block) -> list[fcl.Convex]:
@@ -49,29 +55,47 @@ def _fcl_pieces(block: Block) -> list[fcl.Convex]:
     return shapes
 
 
+def _stacked_vertices(block: Block) -> tuple[np.ndarray, np.ndarray]:
+    """All piece vertices in one ``(n, 3)`` array (block frame), and each piece's first row."""
+    stacked = _STACKED.get(block)
+    if stacked is None:
+        stacked = (np.vstack([p.vertices for p in block.pieces]),
+                   np.cumsum([0] + [len(p.vertices) for p in block.pieces[:-1]]))
+        _STACKED[block] = stacked
+    return stacked
+
+
 class _Entry:
-    __slots__ = ("block", "pose", "objects", "boxes", "centre", "radius", "cell")
+    __slots__ = ("block", "pose", "_objects", "_transform", "boxes", "centre", "radius", "cell")
 
     def __init__(self, block: Block, pose: Pose, cell: tuple[int, int, int]):
         self.block = block
         self.cell = cell
-        self.objects = [fcl.CollisionObject(g) for g in _fcl_pieces(block)]
         self.radius = block.bounding_radius
         self.set_pose(pose)
 
     def set_pose(self, pose: Pose) -> None:
         self.pose = pose
         rotation = pose.rotation
-        tf = fcl.Transform(rotation, pose.position)
-        boxes = np.empty((len(self.objects), 2, 3))
-        for i, (obj, piece) in enumerate(zip(self.objects, self.block.pieces, strict=True)):
-            obj.setTransform(tf)
-            w = piece.vertices @ rotation.T
-            boxes[i, 0] = w.min(axis=0)
-            boxes[i, 1] = w.max(axis=0)
+        vertices, starts = _stacked_vertices(self.block)
+        world = vertices @ rotation.T
+        # Piece bounding boxes, world frame: one product and two segmented reductions.
+        boxes = np.stack([np.minimum.reduceat(world, starts), np.maximum.reduceat(world, starts)], axis=1)
         boxes += pose.position
         self.boxes = boxes
         self.centre = pose.position
+        self._transform = None
+        self._objects: list[fcl.CollisionObject | None] = [None] * len(starts)
+
+    def object(self, i: int) -> fcl.CollisionObject:
+        """Piece ``i`` as a posed FCL object, built the first time the narrow phase needs it."""
+        obj = self._objects[i]
+        if obj is None:
+            if self._transform is None:
+                self._transform = fcl.Transform(self.pose.rotation, self.pose.position)
+            obj = fcl.CollisionObject(_fcl_pieces(self.block)[i], self._transform)
+            self._objects[i] = obj
+        return obj
 
 
 class CollisionWorld:
@@ -187,32 +211,64 @@ class CollisionWorld:
         return hits
 
     def pairs(self, threshold: float = tol.contact_depth) -> list[Collision]:
-        """Every pair of blocks in the world interpenetrating by more than ``threshold``."""
+        """Every pair of blocks in the world interpenetrating by more than ``threshold``.
+
+        The bounding-sphere and piece-box prunings run for all pairs at once
+        (a k-d tree, then numpy); only the piece pairs they leave go to FCL.
+        """
+        keys = list(self._entries)
+        if len(keys) < 2:
+            return []
+        entries = [self._entries[k] for k in keys]
+        centres = np.array([e.centre for e in entries])
+        radii = np.array([e.radius for e in entries])
+        candidates = cKDTree(centres).query_pairs(2.0 * float(radii.max()), output_type="ndarray")
+        if len(candidates) == 0:
+            return []
+        i, j = candidates[:, 0], candidates[:, 1]
+        near = np.sum((centres[i] - centres[j]) ** 2, axis=1) <= (radii[i] + radii[j]) ** 2
+        i, j = i[near], j[near]
+        overlaps = _batch_box_overlaps(entries, i, j)
         out = []
-        for key, e in self._entries.items():
-            for other in self.neighbours(e.centre, e.radius):
-                if other <= key:
-                    continue
-                depth = _pair_depth(e, self._entries[other], threshold)
-                if depth is not None:
-                    out.append(Collision(key, other, depth))
+        for n, (a, b) in enumerate(zip(i.tolist(), j.tolist(), strict=True)):
+            overlap = overlaps[n] if overlaps is not None else None
+            depth = _pair_depth(entries[a], entries[b], threshold, overlap)
+            if depth is not None:
+                ka, kb = keys[a], keys[b]
+                out.append(Collision(min(ka, kb), max(ka, kb), depth))
         out.sort(key=lambda c: (c.a, c.b))
         return out
+
+
+def _batch_box_overlaps(entries: list[_Entry], i: np.ndarray, j: np.ndarray) -> np.ndarray | None:
+    """``(m, p, p)`` bool: which piece boxes of pairs ``(i, j)`` overlap; None if piece counts differ."""
+    counts = {len(e.boxes) for e in entries}
+    if len(counts) != 1 or len(i) == 0:
+        return None
+    boxes = np.stack([e.boxes for e in entries])  # (n, p, 2, 3)
+    a, b = boxes[i], boxes[j]
+    return np.all((a[:, :, None, 0] <= b[:, None, :, 1]) & (b[:, None, :, 0] <= a[:, :, None, 1]), axis=3)
 
 
 _REQUEST_DEPTH = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
 _REQUEST_BOOL = fcl.CollisionRequest(num_max_contacts=1, enable_contact=False)
 
 
-def _pair_depth(a: _Entry, b: _Entry, threshold: float) -> float | None:
-    """Deepest penetration over piece pairs if it exceeds ``threshold``, else None."""
-    # Piece bounding boxes that overlap, all pairs in one vectorised test.
-    overlap = np.all(
-        (a.boxes[:, None, 0] <= b.boxes[None, :, 1]) & (b.boxes[None, :, 0] <= a.boxes[:, None, 1]), axis=2
-    )
+def _pair_depth(a: _Entry, b: _Entry, threshold: float, overlap: np.ndarray | None = None) -> float | None:
+    """Deepest penetration over piece pairs if it exceeds ``threshold``, else None.
+
+    ``overlap`` is the ``(pa, pb)`` piece-box overlap matrix when the caller
+    has it already.
+    """
+    if overlap is None:
+        # Piece bounding boxes that overlap, all pairs in one vectorised test.
+        overlap = np.all(
+            (a.boxes[:, None, 0] <= b.boxes[None, :, 1]) & (b.boxes[None, :, 0] <= a.boxes[:, None, 1]),
+            axis=2,
+        )
     deepest = None
     for i, j in zip(*np.nonzero(overlap), strict=True):
-        oa, ob = a.objects[i], b.objects[j]
+        oa, ob = a.object(i), b.object(j)
         if threshold < 0:
             if fcl.collide(oa, ob, _REQUEST_BOOL, fcl.CollisionResult()):
                 return 0.0
