@@ -45,6 +45,16 @@ class Tolerances:
     plane_angle : float, radians
         In a section scene a block may turn only about y; its local y axis may
         be off world y by this much (float noise of a file's quaternion).
+    contact_gap : float, metres
+        Two blocks, or a block and the foundation, are in contact (the
+        interlock count of ``shoha score``, optimizer/interlock.py) when FCL's
+        distance between their convex pieces is at most this, or they
+        overlap. A simulator save records blocks where PhysX left them, within
+        Unity's default contact offset (1 cm) of what they rest on, and a pile
+        settles by millimetres more; 2 cm is 1.2 % of the 4-ton Shake Block's
+        height and a small part of a leg's thickness, so a block this close
+        bears on its neighbour once the pile settles, while a block a leg's
+        width away is a neighbour, not a contact.
     """
 
     quaternion_norm: float = 1e-6
@@ -55,6 +65,7 @@ class Tolerances:
     rest_speed: float = 1e-3
     rest_time: float = 0.2
     plane_angle: float = 1e-6
+    contact_gap: float = 2e-2
 
 
 tol = Tolerances()

@@ -1,0 +1,222 @@
+"""Trainee-like faults put into a layout on purpose.
+
+Trainers use these to make exercises, and the tests and benchmarks use them
+to check that ``shoha score`` sees exactly the faults put in
+(tests/test_score.py) and to make many saves to score (benchmarks/batch_*.py).
+Each function returns a new layout (same scene, same ids, same extra keys)
+and the ids it touched; the input is never changed.
+
+Which block gets each fault is decided by a written rule on the geometry, so
+that the same reference always gives the same exercise. None of the rules
+runs a physics settle: whether a fault is *only* that fault (a block lifted
+out of tolerance that still stands, say) is for the scorer to find, and for
+the tests to check.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import numpy as np
+
+from geometry.blocks import get_block
+from geometry.errors import InputError
+from geometry.layout import Layout, Placement
+from geometry.pose import Pose, quat_multiply
+from geometry.scene import Scene
+from geometry.tolerance import outside_volume
+
+from .drop import DropWorld, Shape
+from .interlock import interlock
+
+#: Sideways step of :func:`lift_out_of_tolerance`, metres.
+LIFT_STEP = 0.1
+#: How far :func:`lift_out_of_tolerance` moves a block at most, metres.
+LIFT_MAX = 3.0
+#: Yaw angles tried by :func:`stand_on_leg_tip`, degrees.
+TIP_YAWS_DEG = tuple(range(0, 360, 30))
+
+
+def _replace(layout: Layout, poses: dict[int, Pose]) -> Layout:
+    blocks = [Placement(p.id, p.type, poses.get(p.id, p.pose)) for p in layout.blocks]
+    return Layout(layout.scene, blocks, dict(layout.extra), layout.base_dir)
+
+
+def _carriers(scene: Scene, layout: Layout) -> tuple[dict[int, object], set[int]]:
+    """Interlock of each block, and the ids of blocks that something rests on.
+
+    Block b rests on block a when they touch, b does not touch the
+    foundation, and b's centroid is higher than a's.
+    """
+    placed = layout.placed()
+    report = interlock(placed, scene.foundation).by_id()
+    z = {k: p.position[2] for k, _, p in placed}
+    carrying = set()
+    for k, info in report.items():
+        if info.foundation:
+            continue
+        carrying.update(a for a in info.contacts if z[a] < z[k])
+    return report, carrying
+
+
+def _drop_world(scene: Scene, layout: Layout, without: set[int]) -> DropWorld:
+    world = DropWorld(scene.foundation, cell=2.0 * scene.block.bounding_radius)
+    for key, block, pose in layout.placed():
+        if key not in without:
+            world.add(key, Shape.of(block, pose.quaternion), pose.position)
+    return world
+
+
+def lift_out_of_tolerance(scene: Scene, layout: Layout) -> tuple[Layout, int]:
+    """One block lifted by the crane and set down further out, through the tolerance slope.
+
+    Rule: of the blocks on the foundation that carry no other block, take the
+    one farthest from the crest line (largest ``|x|``, then the lowest id).
+    Move it straight away from the crest line (along ``sign(x)`` x) in steps
+    of ``LIFT_STEP`` until, lowered there by the crane, it stands on the
+    foundation alone and part of it lies outside the tolerance zone. Its
+    orientation is kept, so it stands as it stood.
+
+    Returns
+    -------
+    (Layout, id of the moved block)
+    """
+    report, carrying = _carriers(scene, layout)
+    poses = {p.id: p for p in layout.blocks}
+    candidates = sorted((k for k, info in report.items() if info.foundation and k not in carrying),
+                        key=lambda k: (-abs(poses[k].pose.position[0]), k))
+    for key in candidates:
+        p = poses[key]
+        block = get_block(p.type, layout.base_dir)
+        world = _drop_world(scene, layout, {key})
+        shape = Shape.of(block, p.pose.quaternion)
+        sign = 1.0 if p.pose.position[0] >= 0 else -1.0
+        for step in range(1, int(round(LIFT_MAX / LIFT_STEP)) + 1):
+            x = p.pose.position[0] + sign * step * LIFT_STEP
+            z, support, on_ground = world.drop(shape, x, p.pose.position[1])
+            pose = world.pose(shape, x, p.pose.position[1], z)
+            if on_ground and not support and outside_volume(block, pose, scene.tolerance) > 0:
+                return _replace(layout, {key: pose}), key
+    raise InputError("lift_out_of_tolerance: no block on the foundation is free to move")
+
+
+def push_together(scene: Scene, layout: Layout, push: float = 0.02) -> tuple[Layout, tuple[int, int]]:
+    """Two touching blocks pushed into each other.
+
+    Rule: of the pairs of touching blocks that both stand on the foundation
+    and carry no other block, take the first by ids. Each moves ``push``
+    metres horizontally towards the other's centroid.
+
+    Returns
+    -------
+    (Layout, (a, b)) with a < b.
+    """
+    report, carrying = _carriers(scene, layout)
+    poses = {p.id: p.pose for p in layout.blocks}
+    for a in sorted(report):
+        if not report[a].foundation or a in carrying:
+            continue
+        for b in report[a].contacts:
+            if b <= a or not report[b].foundation or b in carrying:
+                continue
+            u = poses[b].position - poses[a].position
+            u[2] = 0.0
+            u /= np.linalg.norm(u)
+            moved = {a: Pose(poses[a].position + push * u, poses[a].quaternion),
+                     b: Pose(poses[b].position - push * u, poses[b].quaternion)}
+            return _replace(layout, moved), (a, b)
+    raise InputError("push_together: no two touching blocks stand free on the foundation")
+
+
+def stand_on_leg_tip(scene: Scene, layout: Layout) -> tuple[Layout, int]:
+    """One block turned upside down and set on the tip of its single leg.
+
+    For tetrapod-like blocks (one leg along local +z) upside down means that
+    leg points down. Rule: of the blocks that touch no foundation and carry
+    no other block, highest centroid first (then lowest id), and of the yaws
+    ``TIP_YAWS_DEG`` in order, take the first that, lowered by the crane at
+    the block's own (x, y), stays inside the tolerance zone and first touches
+    exactly one block and not the foundation.
+
+    Returns
+    -------
+    (Layout, id of the turned block)
+    """
+    report, carrying = _carriers(scene, layout)
+    poses = {p.id: p.pose for p in layout.blocks}
+    types = {p.id: p.type for p in layout.blocks}
+    candidates = sorted((k for k, info in report.items() if not info.foundation and k not in carrying),
+                        key=lambda k: (-poses[k].position[2], k))
+    flip = np.array([0.0, 1.0, 0.0, 0.0])  # half a turn about the block's x axis
+    for key in candidates:
+        block = get_block(types[key], layout.base_dir)
+        world = _drop_world(scene, layout, {key})
+        x, y = poses[key].position[:2]
+        for yaw_deg in TIP_YAWS_DEG:
+            yaw = np.radians(yaw_deg)
+            q = quat_multiply(np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]), flip)
+            shape = Shape.of(block, q)
+            z, support, on_ground = world.drop(shape, x, y)
+            pose = world.pose(shape, x, y, z)
+            if len(support) == 1 and not on_ground and outside_volume(block, pose, scene.tolerance) == 0:
+                return _replace(layout, {key: pose}), key
+    raise InputError("stand_on_leg_tip: no block can be stood on a leg tip inside the tolerance zone")
+
+
+def remove_last(layout: Layout, count: int) -> tuple[Layout, list[int]]:
+    """The layout without its last ``count`` blocks in installation order (a trainee who stopped early)."""
+    if not 0 <= count <= len(layout.blocks):
+        raise InputError(f"remove_last: cannot remove {count} of {len(layout.blocks)} blocks")
+    keep = layout.blocks[: len(layout.blocks) - count]
+    removed = [p.id for p in layout.blocks[len(keep):]]
+    return Layout(layout.scene, list(keep), dict(layout.extra), layout.base_dir), removed
+
+
+def jitter(layout: Layout, rng: np.random.Generator, count: int, sigma_m: float = 0.03,
+           sigma_deg: float = 2.0) -> tuple[Layout, list[int]]:
+    """``count`` random blocks nudged: normal noise of ``sigma_m`` metres and ``sigma_deg`` degrees.
+
+    The rotation is about a random axis (a hand on the crane joystick).
+    """
+    ids = sorted(int(k) for k in rng.choice([p.id for p in layout.blocks], size=count, replace=False))
+    poses = {p.id: p.pose for p in layout.blocks}
+    moved = {}
+    for k in ids:
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        angle = np.radians(rng.normal(scale=sigma_deg))
+        dq = np.concatenate([[np.cos(angle / 2)], np.sin(angle / 2) * axis])
+        q = quat_multiply(dq, poses[k].quaternion)
+        moved[k] = Pose(poses[k].position + rng.normal(scale=sigma_m, size=3), q / np.linalg.norm(q))
+    return _replace(layout, moved), ids
+
+
+def trainee_saves(scene: Scene, layout: Layout, count: int, seed: int = 0) -> Iterator[tuple[str, Layout]]:
+    """``count`` varied saves made from a reference, the same for the same seed.
+
+    Save ``i`` draws from ``numpy.random.default_rng([seed, i])``: a few blocks
+    nudged, sometimes the last few missing, and every tenth save carries one
+    of the named faults above.
+
+    Yields
+    ------
+    (name, Layout)
+    """
+    faults = (lift_out_of_tolerance, push_together, stand_on_leg_tip)
+    for i in range(count):
+        rng = np.random.default_rng([seed, i])
+        save = layout
+        parts = []
+        if i % 10 == 9:
+            fault = faults[(i // 10) % len(faults)]
+            save, _ = fault(scene, save)
+            parts.append(fault.__name__)
+        if rng.random() < 0.3:
+            n = int(rng.integers(1, 11))
+            save, _ = remove_last(save, n)
+            parts.append(f"missing{n}")
+        n = int(rng.integers(0, 6))
+        if n:
+            save, _ = jitter(save, rng, n)
+            parts.append(f"jitter{n}")
+        yield f"save-{i:04d}" + ("-" + "-".join(parts) if parts else ""), save
