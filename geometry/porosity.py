@@ -415,6 +415,12 @@ class PorosityTracker:
     def pose(self, key: int) -> Pose:
         return self._blocks[key][1]
 
+    def contribution(self, key: int) -> float:
+        """What a tracked block adds to ``filled`` now (exact method: its clipped volume, m^3)."""
+        if self.grid is not None:
+            raise NotImplementedError("a voxel block's share depends on its neighbours; use remove()")
+        return float(self._blocks[key][2])
+
     def copy(self) -> PorosityTracker:
         """An independent tracker in the same state (search branches copy it)."""
         other = PorosityTracker.__new__(PorosityTracker)

@@ -114,10 +114,13 @@ class OptimizeResult:
 
 
 def default_strategies() -> list[Strategy]:
+    """Beam search, then annealing, then the CP-SAT bound on the ground layer."""
+    from .anneal import Annealing
     from .beam import BeamSearch
+    from .cpsat import CpSat
     from .physics import raised_check, stands
 
-    return [BeamSearch(accept=raised_check, judge=stands)]
+    return [BeamSearch(accept=raised_check, judge=stands), Annealing(accept=raised_check), CpSat()]
 
 
 def optimize(
@@ -151,12 +154,14 @@ def optimize(
     """
     start = time.monotonic()
     rng = np.random.default_rng(seed)
+    # Keep a share of the budget for the physics confirmation and the final checks.
+    reserve = min(0.15 * time_limit, 10.0) if settle_layout else 0.0
     problem = Problem(
         scene=scene,
         required=scene.required_blocks,
         target=scene.target_porosity,
         lattice=lattice or lattice_for(scene.block, scene.block_type),
-        deadline=start + time_limit,
+        deadline=start + time_limit - reserve,
         report=report,
     )
     build: Build | None = None
@@ -173,10 +178,16 @@ def optimize(
     if settle_layout:
         from .physics import confirm
 
+        problem.deadline = start + time_limit - 2.0  # repairs stop here; one settle still runs
         origin = next(((p["origin_x"], p["origin_y"]) for p in phases if "origin_x" in p), None)
         build, settle_info = confirm(problem, build, rng, origin)
         stable = settle_info["stable"]
     layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed}})
+    gap = {}
+    for p in phases:
+        if p["strategy"] == "cpsat" and "bound_m3" in p:
+            gap = {"layer": "ground", **{k: p[k] for k in ("heuristic_m3", "objective_m3", "bound_m3",
+                                                             "gap_percent", "optimal", "candidates")}}
     report_ = check_layout(scene, layout.placed())
     return OptimizeResult(
         layout=layout,
@@ -190,4 +201,5 @@ def optimize(
         seconds=time.monotonic() - start,
         settle=settle_info,
         phases=phases,
+        gap=gap,
     )

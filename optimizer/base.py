@@ -41,6 +41,8 @@ class Problem:
         ``time.monotonic()`` value by which a strategy must return.
     report : callable, optional
         ``report(phase, build, message)``: progress for the CLI's display.
+    origin : (float, float) or None
+        The pattern origin the beam search settled on, for later strategies.
     """
 
     scene: Scene
@@ -50,6 +52,7 @@ class Problem:
     families: tuple[str, ...] = ("crown", "level", "horizontal")
     deadline: float = field(default_factory=lambda: time.monotonic() + 60.0)
     report: Callable[[str, Build, str], None] | None = None
+    origin: tuple[float, float] | None = None
 
     def time_left(self) -> float:
         return self.deadline - time.monotonic()

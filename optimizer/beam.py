@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .base import Problem, Strategy
-from .build import GROUND, Build, Candidate
+from .build import GROUND, Build, Candidate, fill_window
 from .drop import Shape
 from .hangings import free, hanging
 
@@ -130,56 +130,6 @@ class BeamSearch(Strategy):
 
     # --- candidates ------------------------------------------------------------
 
-    def _window(self, problem: Problem) -> tuple[tuple[float, float], tuple[float, float]]:
-        z = problem.scene.tolerance
-        return (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
-
-    def _fill_window(self, problem: Problem) -> tuple[tuple[float, float], tuple[float, float]]:
-        """Where a block's centroid can lie with the block inside the tolerance zone.
-
-        Its footprint must fit under the slope at half its height and inside
-        the ends: a window narrower than the zone's base, so that fill drops
-        are not wasted on corners no block fits.
-        """
-        z = problem.scene.tolerance
-        h = problem.scene.block.height
-        run = (z.bottom_half_width - z.top_half_width) / z.height
-        half = z.bottom_half_width - run * h / 2 - 0.3 * h
-        inset = 0.45 * h
-        return (-half, half), (z.y_start + inset, z.y_end - inset)
-
-    def _sites(self, problem: Problem, origin: tuple[float, float]) -> list[tuple[str, float, float, float]]:
-        """Pattern sites in crane order: the lattice, then the lattice shifted by half a cell.
-
-        The second pass lands on the first where the first left no room on
-        the ground: the next layer, nested into the pockets of the one below.
-        """
-        xr, yr = self._window(problem)
-        lat = problem.lattice
-        shifted = (origin[0] + lat.w / 2, origin[1] + lat.p / 2)
-        return lat.sites(xr, yr, origin) + lat.sites(xr, yr, shifted)
-
-    def _rank_origins(self, problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
-                      start: Build, stop: float) -> list[tuple[float, float]]:
-        """Pattern origins, best first: by the volume their sites alone place in the design prism."""
-        lat = problem.lattice
-        origins = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
-                                  for _ in range(self.origins - 1)]
-        scored = []
-        for n, origin in enumerate(origins):
-            if n and time.monotonic() > stop:
-                break
-            b = start.copy()
-            for fam, yaw, x, y in self._sites(problem, origin):
-                if len(b) >= problem.required:
-                    break
-                c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
-                if c is not None:
-                    b.place(c)
-            scored.append((-b.inside_volume, n, origin))
-        scored.sort()
-        return [o for _, _, o in scored]
-
     def _lower(self, problem: Problem, build: Build, shape: Shape, x: float, y: float) -> Candidate | None:
         c = build.lower(shape, x, y)
         if c is not None and self.accept is not None and not self.accept(problem, build, c):
@@ -221,7 +171,7 @@ class BeamSearch(Strategy):
             return out, dead  # the pattern first: fill drops would take the pockets its later sites need
         if pending:
             return out, dead  # all pending sites died: move on along the pattern before filling
-        xr, yr = self._fill_window(problem)
+        xr, yr = fill_window(problem.scene)
         for _ in range(4 * self.fill):
             fam = problem.families[int(rng.integers(len(problem.families)))]
             q = free(rng) if fam == "free" else hanging(fam, float(rng.uniform(0, 2 * np.pi)))
@@ -242,14 +192,15 @@ class BeamSearch(Strategy):
         if self.origin is not None:
             origins = [self.origin]
         else:
-            origins = self._rank_origins(problem, shapes, rng, start, t0 + 0.15 * (end - t0))
+            origins = rank_origins(problem, shapes, rng, start, self.origins, t0 + 0.15 * (end - t0))
         best: tuple | None = None
         tried = 0
         runs = 0
         for n, origin in enumerate(origins[: self.restarts]):
-            now = time.monotonic()
-            if n and (now > end or (now - t0) / n > end - now):
-                break  # another restart would not finish in time
+            # A fixed number of restarts: the same seed does the same work on any machine,
+            # and only a deadline that binds cuts it short.
+            if n and time.monotonic() > end:
+                break
             result, count = self._search(problem, start, origin, shapes, rng, end)
             tried += count
             runs += 1
@@ -260,6 +211,7 @@ class BeamSearch(Strategy):
             problem.tell(self.name, best[1], f"restart {n + 1}: {len(result)} placed")
         assert best is not None
         _, result, origin = best
+        problem.origin = origin
         self._stats = {"candidates": float(tried), "restarts": float(runs),
                        "origin_x": origin[0], "origin_y": origin[1]}
         return result
@@ -267,7 +219,7 @@ class BeamSearch(Strategy):
     def _search(self, problem: Problem, start: Build, origin: tuple[float, float], shapes: ShapeCache,
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:
         """One beam search from one pattern origin; returns the best build and candidates tried."""
-        sites = self._sites(problem, origin)
+        sites = pattern_sites(problem, origin)
         beams = [_Beam(start, 0.0, frozenset())]
         tried = 0
         while any(not b.done for b in beams) and time.monotonic() < end:
@@ -316,3 +268,42 @@ class BeamSearch(Strategy):
             problem.tell(self.name, lead.build, f"{len(lead.build)} placed")
         final = max(beams, key=lambda b: (len(b.build), b.build.inside_volume))
         return final.build, tried
+
+
+def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator, start: Build,
+                 n: int, stop: float) -> list[tuple[float, float]]:
+    """Pattern origins, best first: by the volume their sites alone place in the design prism.
+
+    ``n`` origins are drawn (the first is (0, 0)); trials stop at ``stop``
+    (``time.monotonic()``), after the first.
+    """
+    lat = problem.lattice
+    origins = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
+                              for _ in range(n - 1)]
+    scored = []
+    for i, origin in enumerate(origins):
+        if i and time.monotonic() > stop:
+            break
+        b = start.copy()
+        for fam, yaw, x, y in pattern_sites(problem, origin):
+            if len(b) >= problem.required:
+                break
+            c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
+            if c is not None:
+                b.place(c)
+        scored.append((-b.inside_volume, i, origin))
+    scored.sort()
+    return [o for _, _, o in scored]
+
+
+def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[str, float, float, float]]:
+    """Pattern sites in crane order: the lattice, then the lattice shifted by half a cell.
+
+    The second pass lands on the first where the first left no room on the
+    ground: the next layer, nested into the pockets of the one below.
+    """
+    z = problem.scene.tolerance
+    xr, yr = (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
+    lat = problem.lattice
+    shifted = (origin[0] + lat.w / 2, origin[1] + lat.p / 2)
+    return lat.sites(xr, yr, origin) + lat.sites(xr, yr, shifted)

@@ -196,6 +196,21 @@ class Build:
         return np.array([self.poses[k].position[2] for k in self.order])
 
 
+def fill_window(scene: Scene) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where a block's centroid can lie with the block inside the tolerance zone.
+
+    Its footprint must fit under the slope at half its height and inside the
+    ends: a window narrower than the zone's base, so that random drops are
+    not wasted on corners no block fits. Returns ``((xmin, xmax), (ymin, ymax))``.
+    """
+    z = scene.tolerance
+    h = scene.block.height
+    run = (z.bottom_half_width - z.top_half_width) / z.height
+    half = z.bottom_half_width - run * h / 2 - 0.3 * h
+    inset = 0.45 * h
+    return (-half, half), (z.y_start + inset, z.y_end - inset)
+
+
 def resting_gap(build: Build, key: int) -> float:
     """Vertical gap (m) under a placed block: how far it could still be lowered."""
     shape, pose = build.shapes[key], build.poses[key]

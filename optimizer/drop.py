@@ -219,5 +219,30 @@ class DropWorld:
         support = sorted({k for z, k in heights if z >= best - tol.drop_resolution})
         return best + tol.drop_resolution, support, ground >= best - tol.drop_resolution
 
+    def blockers(self, shape: Shape, x: float, y: float, floor: float,
+                 exclude: frozenset[int] = frozenset()) -> set[int]:
+        """Placed blocks that would stop ``shape``, lowered at (x, y), above height ``floor``.
+
+        The same contact test as :meth:`drop`, asked of each block separately;
+        a piece pair whose best possible height is below ``floor`` is skipped.
+        """
+        offset = np.array([x, y])
+        out: set[int] = set()
+        for k in self.under(x, y, shape.radius_xy, exclude):
+            _, _, pieces, edges = self._placed[k]
+            for i in range(len(shape.pieces)):
+                if k in out:
+                    break
+                mb = shape.xy_boxes[i] + offset
+                for fp, fe in zip(pieces, edges, strict=True):
+                    fb = fp.aabb
+                    if (fb[1, 2] - shape.lows[i] <= floor or mb[0, 0] > fb[1, 0] or fb[0, 0] > mb[1, 0]
+                            or mb[0, 1] > fb[1, 1] or fb[0, 1] > mb[1, 1]):
+                        continue
+                    if rest_height(shape.pieces[i], shape.edges[i], fp, fe, offset) > floor:
+                        out.add(k)
+                        break
+        return out
+
     def pose(self, shape: Shape, x: float, y: float, z: float) -> Pose:
         return Pose([x, y, z], shape.quaternion)

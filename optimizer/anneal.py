@@ -1,0 +1,216 @@
+"""Simulated annealing: refine a full layout one block at a time.
+
+Moves, each applied to a block that carries no other block (so nothing is
+ever pulled from under a block), which is then lowered again from above as a
+crane would and becomes the last block of the crane order (always a valid
+order, since nothing rests on it):
+
+``jitter``     shift the block a little horizontally;
+``yaw``        turn it about the vertical;
+``hanging``    hang it in another family (crown, level, horizontal), any yaw;
+``relocate``   take it out and set it down somewhere else;
+``insert``     (only while the layout is short of the required count) add a block.
+
+Relocated and inserted blocks go, half the time, to a jittered site of the
+placement pattern the beam search used (its pockets fit the pattern's own
+hangings), otherwise anywhere in the zone a block can fit.
+
+A move whose block would end out of tolerance or interpenetrate another
+(FCL) is rejected outright, never penalised. Otherwise it is accepted by the
+Metropolis rule at temperature T. The energy (``optimizer.objective``) is
+updated per move: porosity through the exact tracker (one block's clipped
+volume), slice spread through centroid bins, support from the block's own
+support list. A move that would put a block on other blocks is also settled
+locally (``optimizer.physics.raised_check``) before it is kept.
+
+Temperature schedule: T0 is calibrated so that the average uphill move of a
+trial sample is accepted with probability 1/2; T falls geometrically to
+T0/100 over the iterations. The iteration count is fixed, so a seed gives
+one result; the deadline only stops the run early.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from .base import Problem, Strategy
+from .beam import ShapeCache
+from .build import GROUND, Build, Candidate, fill_window
+from .hangings import FAMILIES, free, hanging
+from .objective import Energy
+
+MOVES = ("jitter", "yaw", "hanging", "relocate")
+
+
+def weak_blocks(build: Build) -> int:
+    """Blocks resting on fewer than three blocks and not on the ground."""
+    return sum(1 for s in build.supports.values() if GROUND not in s and len(s) < 3)
+
+
+def energy_of(problem: Problem, build: Build) -> float:
+    """The energy of a build computed from scratch (the reference for the incremental one)."""
+    from geometry.porosity import exact_filled_volume
+
+    e = Energy(problem.scene, problem.required, problem.target)
+    for k in build.order:
+        e.add(build.poses[k].position)
+    filled = exact_filled_volume(problem.scene.design.polytope, build.placed(), assume_disjoint=True)
+    porosity = 100.0 * (problem.scene.design_volume - filled) / problem.scene.design_volume
+    return e.total(len(build), porosity, weak_blocks(build))
+
+
+class Annealing(Strategy):
+    """Metropolis refinement of a layout.
+
+    Parameters
+    ----------
+    iterations : int
+        Proposed moves.
+    jitter_xy : float, metres
+    jitter_yaw : float, radians
+    accept : callable, optional
+        ``accept(problem, build, candidate) -> bool``, an extra test for
+        each kept move (``optimizer.physics.raised_check``).
+    """
+
+    name = "anneal"
+
+    def __init__(self, iterations: int = 600, jitter_xy: float = 0.15, jitter_yaw: float = math.radians(10),
+                 accept: Callable[[Problem, Build, Candidate], bool] | None = None):
+        self.iterations = iterations
+        self.jitter_xy = jitter_xy
+        self.jitter_yaw = jitter_yaw
+        self.accept = accept
+        self._sites: list[tuple[str, float, float, float]] = []
+        self._stats: dict[str, float] = {}
+
+    def stats(self) -> dict[str, float]:
+        return dict(self._stats)
+
+    # --- moves ---------------------------------------------------------------------------
+
+    def _propose(self, problem: Problem, build: Build, shapes: ShapeCache, rng: np.random.Generator
+                 ) -> tuple[str, int | None, Candidate | None]:
+        """A move: (kind, moved key or None for insert, candidate or None when it does not fit)."""
+        if len(build) < problem.required and rng.random() < 0.5:
+            x, y, q = self._spot(problem, rng)
+            return "insert", None, build.lower(shapes.get(q), x, y)
+        free_keys = build.free_keys()
+        if not free_keys:
+            return "none", None, None
+        key = free_keys[int(rng.integers(len(free_keys)))]
+        kind = MOVES[int(rng.integers(len(MOVES)))]
+        pose = build.poses[key]
+        x, y = pose.position[0], pose.position[1]
+        q = pose.quaternion
+        if kind == "jitter":
+            x, y = x + rng.normal(0, self.jitter_xy), y + rng.normal(0, self.jitter_xy)
+        elif kind == "yaw":
+            from geometry.pose import axis_angle_quat, quat_multiply
+
+            q = quat_multiply(axis_angle_quat([0, 0, 1], rng.normal(0, self.jitter_yaw)), q)
+        elif kind == "hanging":
+            q = self._orientation(problem, rng)
+        else:  # relocate
+            x, y, q = self._spot(problem, rng)
+        c = build.lower(shapes.get(q), float(x), float(y), exclude=frozenset({key}))
+        return kind, key, c
+
+    def _spot(self, problem: Problem, rng: np.random.Generator) -> tuple[float, float, np.ndarray]:
+        """Where an inserted or relocated block goes: half the time a jittered pattern site
+        (the pockets the pattern leaves fit its own hangings), else anywhere in the zone."""
+        if self._sites and rng.random() < 0.5:
+            fam, yaw, x, y = self._sites[int(rng.integers(len(self._sites)))]
+            return (float(x + rng.normal(0, self.jitter_xy)), float(y + rng.normal(0, self.jitter_xy)),
+                    hanging(fam, float(yaw + rng.normal(0, self.jitter_yaw))))
+        window = fill_window(problem.scene)
+        x, y = rng.uniform(window[0][0], window[0][1]), rng.uniform(window[1][0], window[1][1])
+        return float(x), float(y), self._orientation(problem, rng)
+
+    def _orientation(self, problem: Problem, rng: np.random.Generator) -> np.ndarray:
+        families = [f for f in problem.families if f in FAMILIES or f == "free"]
+        fam = families[int(rng.integers(len(families)))]
+        return free(rng) if fam == "free" else hanging(fam, float(rng.uniform(0, 2 * np.pi)))
+
+    def _delta(self, problem: Problem, build: Build, energy: Energy, key: int | None, c: Candidate,
+               weak: int) -> tuple[float, int]:
+        """Energy change of a move, and the new weak-block count (nothing is changed)."""
+        before = energy.total(len(build), build.porosity.percent, weak)
+        filled = build.porosity.filled + c.inside
+        count = len(build) + (1 if key is None else 0)
+        new_weak = weak + (1 if GROUND not in c.support and len(c.support) < 3 else 0)
+        if key is not None:
+            filled -= build.porosity.contribution(key)
+            s = build.supports[key]
+            new_weak -= 1 if GROUND not in s and len(s) < 3 else 0
+            energy.remove(build.poses[key].position)
+        energy.add(c.pose.position)
+        after = energy.total(count, build.porosity.percent_with(filled), new_weak)
+        energy.remove(c.pose.position)
+        if key is not None:
+            energy.add(build.poses[key].position)
+        return after - before, new_weak
+
+    def _apply(self, build: Build, energy: Energy, key: int | None, c: Candidate) -> None:
+        if key is not None:
+            energy.remove(build.poses[key].position)
+            build.remove(key)
+        build.place(c)
+        energy.add(c.pose.position)
+
+    # --- search ----------------------------------------------------------------------------
+
+    def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
+        from .beam import pattern_sites
+
+        build = build.copy() if build is not None else Build(problem.scene)
+        self._sites = pattern_sites(problem, problem.origin) if problem.origin is not None else []
+        shapes = ShapeCache(problem.scene.block)
+        energy = Energy(problem.scene, problem.required, problem.target)
+        for k in build.order:
+            energy.add(build.poses[k].position)
+        weak = weak_blocks(build)
+        current = energy.total(len(build), build.porosity.percent, weak)
+        best_e, best = current, build.copy()
+
+        # Calibrate T0: the mean uphill change of a sample of moves is accepted half the time.
+        uphill = []
+        for _ in range(40):
+            kind, key, c = self._propose(problem, build, shapes, rng)
+            if c is not None:
+                d, _ = self._delta(problem, build, energy, key, c, weak)
+                if d > 0:
+                    uphill.append(d)
+        t0 = (float(np.mean(uphill)) if uphill else 1.0) / math.log(2.0)
+        t_end = t0 / 100.0
+        accepted = rejected = collided = 0
+        for it in range(self.iterations):
+            if problem.time_left() <= 0:
+                break
+            temp = t0 * (t_end / t0) ** (it / max(1, self.iterations - 1))
+            kind, key, c = self._propose(problem, build, shapes, rng)
+            if c is None:
+                collided += kind != "none"
+                continue
+            d, new_weak = self._delta(problem, build, energy, key, c, weak)
+            if d > 0 and rng.random() >= math.exp(-d / temp):
+                rejected += 1
+                continue
+            if self.accept is not None and not self.accept(problem, build, c):
+                rejected += 1
+                continue
+            self._apply(build, energy, key, c)
+            weak = new_weak
+            current += d
+            accepted += 1
+            if current < best_e - 1e-12:
+                best_e, best = current, build.copy()
+            if it % 50 == 0:
+                problem.tell(self.name, best, f"T={temp:.3g} E={best_e:.3f}")
+        self._stats = {"iterations": float(it + 1 if self.iterations else 0), "accepted": float(accepted),
+                       "rejected": float(rejected), "infeasible": float(collided), "t0": t0,
+                       "energy": best_e}
+        return best

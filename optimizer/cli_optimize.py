@@ -1,0 +1,120 @@
+"""``shoha optimize``: a reference layout for a scene (CONTRACT.md, "CLI").
+
+The only place where strategy names map to strategy classes.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import click
+
+from geometry.errors import InputError
+
+
+def _strategies(names: str):
+    from .anneal import Annealing
+    from .beam import BeamSearch
+    from .cpsat import CpSat
+    from .physics import raised_check, stands
+
+    table = {
+        "beam": lambda: BeamSearch(accept=raised_check, judge=stands),
+        "anneal": lambda: Annealing(accept=raised_check),
+        "cpsat": lambda: CpSat(),
+    }
+    out = []
+    for name in [n.strip() for n in names.split(",") if n.strip()]:
+        if name not in table:
+            raise InputError(f"--strategy {name!r}: use a comma-separated list of {', '.join(table)}")
+        out.append(table[name]())
+    if not out:
+        raise InputError("--strategy: name at least one strategy")
+    return out
+
+
+def register(cli: click.Group) -> None:
+    from .cli import _check_out, _emit
+
+    @cli.command("optimize")
+    @click.argument("scene_name", metavar="SCENE")
+    @click.option("--out", required=True, help="Layout file to write (shoha-layout/1).")
+    @click.option("--seed", type=click.IntRange(0, 2**31 - 1), default=0, show_default=True,
+                  help="Random seed; the same seed gives the same layout.")
+    @click.option("--time-limit", type=float, default=120.0, show_default=True,
+                  help="Wall-clock budget in seconds; the best valid layout so far is written.")
+    @click.option("--strategy", "strategy_names", default="beam,anneal,cpsat", show_default=True,
+                  help="Strategies, run in order: beam, anneal, cpsat.")
+    @click.option("--no-settle", is_flag=True, help="Skip the physics confirmation.")
+    @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
+    def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float, strategy_names: str,
+                     no_settle: bool, as_json: bool) -> None:
+        """Find a reference layout: valid blocks in crane order, near the target porosity."""
+        from geometry.layout import write_layout
+        from geometry.scene import load_scene
+
+        from .api import optimize
+
+        if not math.isfinite(time_limit) or time_limit <= 0:
+            raise InputError(f"--time-limit {time_limit}: must be a positive number of seconds")
+        path = _check_out(out)
+        scene = load_scene(scene_name)
+        strategies = _strategies(strategy_names)
+        with _Progress(scene.required_blocks, scene.target_porosity) as progress:
+            result = optimize(scene, seed=seed, time_limit=time_limit, strategies=strategies,
+                              settle_layout=not no_settle, report=progress.update)
+        write_layout(result.layout, path)
+        result.path = str(path)
+        payload = result.to_dict()
+        _emit(payload, as_json, f"{result.summary()}\nwrote {path}")
+
+
+class _Progress:
+    """A rich status line on stderr: phase, blocks, best porosity, what is missing."""
+
+    def __init__(self, required: int, target: float):
+        self.required = required
+        self.target = target
+        self._live = None
+        self._start = time.monotonic()
+        self._last = 0.0
+        self._bucket = 0
+        self._best: tuple[int, float] | None = None
+
+    def __enter__(self) -> _Progress:
+        from rich.console import Console
+        from rich.live import Live
+
+        console = Console(stderr=True)
+        if console.is_terminal:
+            self._live = Live(console=console, refresh_per_second=4, transient=True)
+            self._live.__enter__()
+        self._console = console
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._live is not None:
+            self._live.__exit__(*exc)
+
+    def update(self, phase: str, build, message: str = "") -> None:
+        n, porosity = len(build), build.porosity.percent
+        key = (n, -abs(porosity - self.target))
+        if self._best is None or key > (self._best[0], -abs(self._best[1] - self.target)):
+            self._best = (n, porosity)
+        now = time.monotonic()
+        if now - self._last < 0.25:
+            return
+        self._last = now
+        best_n, best_p = self._best
+        short = self.required - best_n
+        violations = f"{short} short of {self.required}" if short > 0 else "none"
+        line = (f"[bold]{phase}[/bold] {now - self._start:5.1f} s | best: {best_n}/{self.required} blocks, "
+                f"porosity {best_p:.2f}% (target {self.target:g}%), violations: {violations} | {message}")
+        if self._live is not None:
+            self._live.update(line)
+        elif int((now - self._start) / 10) > self._bucket:
+            # Not a terminal (a log file): one plain line every ten seconds.
+            self._bucket = int((now - self._start) / 10)
+            self._console.print(line, highlight=False, soft_wrap=True)
+

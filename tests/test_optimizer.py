@@ -1,0 +1,219 @@
+"""The placement optimizer: drops, annealing, the CP-SAT model, determinism."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import time
+
+import numpy as np
+import pytest
+
+from geometry.collision import CollisionWorld, collisions
+from geometry.constants import tol
+from geometry.pose import Pose
+from geometry.samples import random_quaternion
+from geometry.scene import load_scene
+from optimizer.anneal import Annealing, energy_of
+from optimizer.api import optimize
+from optimizer.base import Problem
+from optimizer.beam import BeamSearch
+from optimizer.cpsat import CpSat
+from optimizer.drop import DropWorld, Shape
+from optimizer.hangings import BASE, FAMILIES, hanging
+from optimizer.patterns import TUNED, InterlockLattice, _lattice_penalty, lattice_for
+from tests.conftest import ROOT, shoha
+from tests.test_strategies import TINY, assert_valid, problem
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return load_scene(TINY)
+
+
+def test_candidates_touch_what_they_rest_on(mini, shake):
+    """Every drop ends in contact (FCL): not hovering, not penetrating."""
+    rng = np.random.default_rng(0)
+    drops = DropWorld(mini.foundation, cell=2.2)
+    world = CollisionWorld(cell=2.4)
+    for k in range(40):
+        shape = Shape.of(shake, random_quaternion(rng))
+        x, y = rng.uniform([-3, 1], [3, 11])
+        z, support, on_ground = drops.drop(shape, x, y)
+        pose = Pose([x, y, z], shape.quaternion)
+        assert world.query(shake, pose, threshold=-1.0) == []  # no contact at rest height
+        lower = Pose([x, y, z - 2 * tol.drop_resolution], shape.quaternion)
+        touched = {key for key, _ in world.query(shake, lower, threshold=-1.0)}
+        if on_ground:
+            assert pose.apply(shake.vertices)[:, 2].min() == pytest.approx(tol.drop_resolution, abs=1e-9)
+        else:
+            assert touched, "a block rests on nothing"
+            assert set(support) <= touched
+        drops.add(k, shape, pose.position)
+        world.add(k, shake, pose)
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_hangings_are_the_documented_orientations(shake, family):
+    from geometry.blocks import LEG_DIRECTIONS
+
+    r = Pose([0, 0, 0], hanging(family, 0.3)).rotation
+    legs_z = (LEG_DIRECTIONS @ r.T)[:, 2]
+    up = np.sort(legs_z)[::-1]
+    if family == "crown":  # one leg straight up
+        assert up[0] == pytest.approx(1.0)
+    elif family == "level":  # one leg straight down, three up at the same height
+        assert up[-1] == pytest.approx(-1.0) and np.ptp(up[:3]) < 1e-9
+    else:  # two up, two down, symmetric
+        assert up[0] == pytest.approx(up[1]) and up[2] == pytest.approx(up[3]) and up[0] == pytest.approx(-up[3])
+    assert set(BASE) == set(FAMILIES)
+
+
+@pytest.mark.parametrize("name", list(TUNED))
+def test_tuned_lattices_are_crane_feasible(name):
+    from geometry.blocks import get_block
+
+    block = get_block(name)
+    lat = lattice_for(block, name)
+    params = np.array([lat.p, lat.w, lat.q, lat.u, lat.v, lat.yaw_a, lat.yaw_b])
+    # The penalty adds 20 per metre a block stops short of the ground: zero means feasible.
+    assert _lattice_penalty(params, block, (lat.family_a, lat.family_b)) == pytest.approx(lat.area_per_block)
+    tighter = InterlockLattice(lat.p * 0.9, lat.w * 0.9, lat.q * 0.9, lat.u * 0.9, lat.v * 0.9, lat.yaw_a, lat.yaw_b)
+    p2 = np.array([tighter.p, tighter.w, tighter.q, tighter.u, tighter.v, tighter.yaw_a, tighter.yaw_b])
+    assert _lattice_penalty(p2, block, ("crown", "level")) > tighter.area_per_block + 0.01
+
+
+class _CheckedAnnealing(Annealing):
+    """Annealing that checks each accepted move independently before applying it."""
+
+    def __init__(self, problem, **kw):
+        super().__init__(**kw)
+        self.problem = problem
+        self.applied = 0
+        self.energies: list[tuple[float, float]] = []
+
+    def _apply(self, build, energy, key, c):
+        others = [(k, build.block, build.poses[k]) for k in build.order if k != key]
+        assert collisions(others + [(-5, build.block, c.pose)], threshold=0.0) == []
+        super()._apply(build, energy, key, c)
+        self.applied += 1
+        incremental = energy.total(len(build), build.porosity.percent,
+                                   sum(1 for s in build.supports.values() if -1 not in s and len(s) < 3))
+        self.energies.append((incremental, energy_of(self.problem, build)))
+
+
+def test_annealing_never_accepts_a_collision_and_its_energy_is_exact(tiny):
+    pr = problem(tiny)
+    start = BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1))
+    a = _CheckedAnnealing(pr, iterations=300, jitter_xy=0.3)
+    out = a.run(pr, start, np.random.default_rng(2))
+    assert a.applied > 0, "no move was accepted: the test would check nothing"
+    for incremental, full in a.energies:
+        assert incremental == pytest.approx(full, abs=1e-9)
+    assert a.stats()["energy"] == pytest.approx(energy_of(pr, out), abs=1e-9)
+    assert_valid(tiny, out)
+
+
+def test_annealing_fills_a_short_layout(tiny):
+    pr = problem(tiny)
+    start = BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1))
+    short = start.copy()
+    for k in short.free_keys()[:3]:
+        short.remove(k)
+    out = Annealing(iterations=300).run(pr, short, np.random.default_rng(0))
+    assert len(out) > len(short)
+    assert energy_of(pr, out) < energy_of(pr, short)
+
+
+def test_cpsat_returns_the_known_optimum_on_a_tiny_candidate_set(tiny):
+    """Brute force over every subset of a small candidate set against CP-SAT."""
+    pr = problem(tiny)
+    c = CpSat(origins=1, jitter=2)
+    cands = c.candidates(pr, [(0.3, 0.2)], np.random.default_rng(0))[:14]
+    conflicts, before = c.relations(pr, cands)
+    values = [v for *_, v in cands]
+    assert len(conflicts) >= 3, "the set must have conflicts for the test to mean anything"
+    for limit in (3, 6, len(values)):
+        best = 0.0
+        for r in range(limit + 1):
+            for subset in itertools.combinations(range(len(values)), r):
+                s = set(subset)
+                if any(i in s and j in s for i, j in conflicts):
+                    continue
+                best = max(best, sum(values[i] for i in subset))
+        chosen, objective, bound, status = c.solve(values, conflicts, limit, seed=0)
+        assert status == "OPTIMAL"
+        assert objective == pytest.approx(best, abs=1e-5)
+        assert bound == pytest.approx(best, abs=1e-5)
+        assert len(chosen) <= limit and not any(i in chosen and j in chosen for i, j in conflicts)
+
+
+def _light(seed_scene, seed, seconds=120):
+    return optimize(seed_scene, seed=seed, time_limit=seconds,
+                    strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
+
+
+def test_same_seed_same_layout_different_seed_different(tiny):
+    a = _light(tiny, 1).layout.dumps()
+    b = _light(tiny, 1).layout.dumps()
+    c = _light(tiny, 2).layout.dumps()
+    assert a == b
+    assert a != c
+
+
+def test_optimize_result_is_valid_on_tiny(tiny):
+    """The default pipeline (beam, anneal, CP-SAT, settle) on a 25-block, 4 m slice of mini.
+
+    Validity is never traded for count. The count itself is the slow mini
+    acceptance test's business; the slice's ends cost it a block or two, so
+    here a floor of 80 % only catches a broken search.
+    """
+    r = optimize(tiny, seed=1, time_limit=120)
+    assert r.collisions == 0 and r.out_of_tolerance == 0
+    assert r.stable is True
+    assert r.blocks >= 0.8 * tiny.required_blocks
+    if r.blocks < tiny.required_blocks:
+        assert r.summary().startswith(f"{tiny.required_blocks} required, {r.blocks} fit: porosity ")
+    assert r.gap["gap_percent"] >= 0.0 and r.gap["bound_m3"] >= r.gap["heuristic_m3"] - 1e-5
+
+
+def test_time_limit_is_honoured_and_result_valid(tiny):
+    t0 = time.monotonic()
+    r = optimize(tiny, seed=3, time_limit=4.0)
+    assert time.monotonic() - t0 < 4.0 + 3.0  # one settle and the final checks may run past
+    assert r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
+
+
+def test_cli_optimize_writes_the_contract_keys(tmp_path):
+    out = tmp_path / "ref.json"
+    r = shoha("optimize", TINY, "--out", str(out), "--seed", "1", "--time-limit", "60",
+              "--strategy", "beam", "--json")
+    assert r.returncode == 0, r.stderr
+    d = json.loads(r.stdout)
+    assert set(d) >= {"porosity_percent", "blocks", "collisions", "out_of_tolerance", "stable", "seconds", "path"}
+    assert d["path"] == str(out) and out.exists()
+    assert json.loads(out.read_text())["format"] == "shoha-layout/1"
+
+
+def test_cli_optimize_bad_input(tmp_path):
+    r = shoha("optimize", "atlantis", "--out", str(tmp_path / "x.json"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
+    r = shoha("optimize", "mini", "--out", str(tmp_path / "x.json"), "--strategy", "magic")
+    assert r.returncode == 2 and "magic" in r.stderr
+    r = shoha("optimize", "mini", "--out", str(tmp_path / "x.json"), "--time-limit", "nan")
+    assert r.returncode == 2
+    assert not (tmp_path / "x.json").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_mini_reference_layout_is_valid(seed):
+    """Acceptance: 75 blocks, 0 collisions, 0 out of tolerance, stable, within 1 point of 56 %."""
+    r = optimize(load_scene("mini"), seed=seed, time_limit=120)
+    assert r.valid, r.summary()
+    assert abs(r.porosity_percent - 56.0) <= 1.0, r.summary()
+    assert r.seconds <= 120
+
+
+def test_scene_root_is_available():
+    assert (ROOT / "tests" / "data" / "tiny.toml").is_file()

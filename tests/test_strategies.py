@@ -1,0 +1,111 @@
+"""The contract every search strategy passes (optuna's BasicSamplerTestCase model).
+
+Each strategy supplies a fixture; the tests are shared. A build a strategy
+returns is valid: no interpenetration (FCL), every block inside the tolerance
+zone, every block resting on what it was lowered onto, supports placed
+before what they carry (a crane order), at most the required count; the same
+seed gives the same build and the deadline is kept.
+"""
+
+from __future__ import annotations
+
+import time
+
+import fcl
+import numpy as np
+import pytest
+
+from geometry.collision import collisions
+from geometry.constants import tol
+from geometry.scene import load_scene
+from geometry.tolerance import out_of_tolerance
+from optimizer.anneal import Annealing
+from optimizer.base import Problem
+from optimizer.beam import BeamSearch
+from optimizer.build import GROUND, Build
+from optimizer.cpsat import CpSat
+from optimizer.patterns import lattice_for
+from tests.conftest import ROOT
+
+TINY = str(ROOT / "tests" / "data" / "tiny.toml")
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return load_scene(TINY)
+
+
+def problem(scene, seconds: float = 60.0) -> Problem:
+    return Problem(scene, scene.required_blocks, scene.target_porosity, lattice_for(scene.block, scene.block_type),
+                   deadline=time.monotonic() + seconds)
+
+
+STRATEGIES = {
+    "beam": lambda: BeamSearch(restarts=1, origins=3),
+    "anneal": lambda: Annealing(iterations=120),
+    "cpsat": lambda: CpSat(origins=1, jitter=1, time_limit=5.0),
+}
+
+
+@pytest.fixture(scope="module")
+def seeded(tiny):
+    """A beam build for the strategies that refine one."""
+    return BeamSearch(restarts=1, origins=3).run(problem(tiny), None, np.random.default_rng(3))
+
+
+def _distance_to_support(build: Build, key: int) -> float:
+    """Shortest FCL distance from a block to each of its supports (the ground as a plane)."""
+    from geometry.collision import _fcl_pieces
+
+    block, pose = build.block, build.poses[key]
+    objs = [fcl.CollisionObject(g, fcl.Transform(pose.rotation, pose.position)) for g in _fcl_pieces(block)]
+    worst = 0.0
+    for s in build.supports[key]:
+        if s == GROUND:
+            d = float(pose.apply(block.vertices)[:, 2].min())
+        else:
+            other = build.poses[s]
+            targets = [fcl.CollisionObject(g, fcl.Transform(other.rotation, other.position))
+                       for g in _fcl_pieces(block)]
+            d = min(fcl.distance(a, b, fcl.DistanceRequest(), fcl.DistanceResult())
+                    for a in objs for b in targets)
+        worst = max(worst, d)
+    return worst
+
+
+def assert_valid(scene, build: Build) -> None:
+    placed = build.placed()
+    assert len(build) <= scene.required_blocks
+    assert collisions(placed, threshold=0.0) == []
+    assert out_of_tolerance(placed, scene.tolerance) == []
+    rank = {k: i for i, k in enumerate(build.order)}
+    for k in build.order:
+        support = build.supports[k]
+        assert support, f"block {k} rests on nothing"
+        assert all(s == GROUND or rank[s] < rank[k] for s in support), "a support comes after its load"
+        # Lowered until it touched: within the drop resolution of each support, not hovering.
+        assert _distance_to_support(build, k) <= 2 * tol.drop_resolution + 1e-9
+
+
+@pytest.mark.parametrize("name", list(STRATEGIES))
+class TestStrategyContract:
+    def _run(self, name, tiny, seeded, seed=0, seconds=60.0):
+        start = seeded if name == "anneal" else None
+        return STRATEGIES[name]().run(problem(tiny, seconds), start, np.random.default_rng(seed))
+
+    def test_returns_a_valid_build(self, name, tiny, seeded):
+        build = self._run(name, tiny, seeded)
+        assert len(build) > 0
+        assert_valid(tiny, build)
+
+    def test_same_seed_same_build(self, name, tiny, seeded):
+        a = self._run(name, tiny, seeded, seed=5).layout().dumps()
+        b = self._run(name, tiny, seeded, seed=5).layout().dumps()
+        assert a == b
+
+    def test_keeps_the_deadline(self, name, tiny, seeded):
+        t0 = time.monotonic()
+        build = self._run(name, tiny, seeded, seconds=0.5)
+        # The deadline is checked between steps: one step (a few candidate drops) may run past it.
+        assert time.monotonic() - t0 < 0.5 + 5.0
+        assert_valid(tiny, build)
