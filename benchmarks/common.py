@@ -257,6 +257,23 @@ def timed(fn: Callable[[], Any], repeats: int = 7, warmup: int = 1) -> tuple[Tim
     return Timing(float(np.median(times)), min(times), max(times), len(times)), value
 
 
+def move_times(tracker: Any, placed: Placed, moves: Placed, rounds: int = 3) -> np.ndarray:
+    """Seconds of each ``tracker.move``: every block to its pose in ``moves``, then back.
+
+    ``tracker`` holds ``placed`` (a ``PorosityTracker``). One untimed round
+    first, then ``rounds`` timed ones.
+    """
+    times = []
+    for r in range(rounds + 1):
+        for (key, _, pose), (_, _, moved) in zip(placed, moves, strict=True):
+            for target in (moved, pose):
+                t = time.perf_counter()
+                tracker.move(key, target)
+                if r:
+                    times.append(time.perf_counter() - t)
+    return np.array(times)
+
+
 def repeats_for(seconds: float, budget: float = 3.0, lo: int = 1, hi: int = 21) -> int:
     """How many repeats fit ``budget`` seconds for a call that took ``seconds`` once."""
     return int(np.clip(budget / max(seconds, 1e-6), lo, hi))

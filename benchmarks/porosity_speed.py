@@ -27,10 +27,8 @@ Writes ``benchmarks/results/porosity_speed.csv`` and ``.json`` (the machine).
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
-from common import Run, jittered, mini, mini_reference, paper_layout, timed
+from common import Run, Timing, jittered, mini, mini_reference, move_times, paper_layout, timed
 
 from geometry.collision import collisions
 from geometry.porosity import PorosityTracker, exact_filled_volume, porosity
@@ -39,17 +37,6 @@ TARGET_EXACT_MS = 20.0
 TARGET_VOXEL_200_MS = 500.0
 TARGET_MOVE_MS = 2.0
 DIVISIONS = (50, 100, 150, 200)
-
-
-def move_times(tracker: PorosityTracker, placed: list, moves: list) -> np.ndarray:
-    """Seconds of each ``tracker.move``: every block to its moved pose, then back."""
-    times = []
-    for (key, _, pose), (_, _, moved) in zip(placed, moves, strict=True):
-        for target in (moved, pose):
-            t = time.perf_counter()
-            tracker.move(key, target)
-            times.append(time.perf_counter() - t)
-    return np.array(times)
 
 
 def main() -> None:
@@ -88,9 +75,8 @@ def main() -> None:
         tracker = PorosityTracker(scene, method, divisions=d)
         for key, block, pose in ref:
             tracker.add(key, block, pose)
-        move_times(tracker, ref, moves)  # warm-up
-        times = np.concatenate([move_times(tracker, ref, moves) for _ in range(3)])
-        timing_ = type(t)(float(np.median(times)), float(times.min()), float(times.max()), len(times))
+        times = move_times(tracker, ref, moves, rounds=3)
+        timing_ = Timing(float(np.median(times)), float(times.min()), float(times.max()), len(times))
         row("incremental move of one block", method, len(ref), d, timing_, tracker.percent, TARGET_MOVE_MS,
             "PorosityTracker.move, median over every block moved and back, 3 rounds")
 
