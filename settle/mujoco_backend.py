@@ -83,9 +83,6 @@ from collections.abc import Sequence
 
 import mujoco
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import reverse_cuthill_mckee
-from scipy.spatial import cKDTree
 
 from geometry.blocks import Block
 from geometry.constants import GRAVITY, tol
@@ -310,12 +307,14 @@ class MujocoBackend(SettleBackend):
             n = min(self.check_every, total - steps)
             mujoco.mj_step(model, data, nstep=n)
             steps += n
+            # Simulated time as steps x step: data.time gathers rounding error.
+            t = steps * self.timestep
             self._check_health(data, steps)
-            if progress is not None and data.time >= next_report:
-                progress(float(data.time), seconds)
-                next_report = data.time + 0.1
+            if progress is not None and (t >= next_report or steps == total):
+                progress(t, seconds)
+                next_report = t + 0.1
             v = data.qvel.reshape(-1, 6)
-            if monitor.update(float(data.time), v[:, :3], v[:, 3:]) and early_stop:
+            if monitor.update(t, v[:, :3], v[:, 3:]) and early_stop:
                 at_rest = True
                 break
         qpos = data.qpos.reshape(-1, 7)
@@ -337,24 +336,22 @@ def free_order(bodies: Sequence[SettleBody]) -> list[int]:
 
     MuJoCo's Newton solver factorises ``M + J' D J`` by sparse Cholesky in
     the order of the degrees of freedom, without reordering. Two blocks in
-    contact couple their dofs, and in the order the blocks were placed the
-    couplings are scattered, so the factor fills in towards a dense matrix,
-    whose cost grows with the cube of the block count. Reverse Cuthill-McKee
-    on the graph of blocks that could touch (centres closer than the sum of
-    their bounding radii) keeps the couplings in a narrow band. Along a
-    breakwater the band is about one cross-section of blocks wide, so the
-    factorisation costs O(n): on a 75-block pile of ``mini`` the solver's
-    share of a step falls from 2.2 ms to 0.7 ms.
+    contact couple their dofs; in the order the blocks were placed the
+    couplings are scattered and the factor fills in towards a dense matrix,
+    whose cost grows with the cube of the block count. Sorted along the
+    principal axis of their centres (the crest, for a breakwater), touching
+    blocks lie close in the order, and the factor stays within a band about
+    one cross-section of blocks wide, so its cost grows linearly along the
+    crest. Measured on a poured 300-block pile: 403 ms per step in the
+    placement order, 27 ms with scipy's reverse Cuthill-McKee (which starts
+    from a block of least degree, often mid-pile, and sweeps in rings), and
+    18 ms sorted along the principal axis.
     """
     index = [i for i, b in enumerate(bodies) if b.movable]
     if len(index) < 3:
         return index
     centres = np.array([bodies[i].pose.position for i in index])
-    radii = np.array([bodies[i].block.bounding_radius for i in index])
-    pairs = cKDTree(centres).query_pairs(2 * radii.max(), output_type="ndarray")
-    if len(pairs):
-        near = np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1)
-        pairs = pairs[near < radii[pairs[:, 0]] + radii[pairs[:, 1]]]
-    graph = csr_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(index),) * 2)
-    perm = reverse_cuthill_mckee(graph + graph.T, symmetric_mode=True)
-    return [index[i] for i in perm]
+    centres -= centres.mean(axis=0)
+    axis = np.linalg.svd(centres, full_matrices=False)[2][0]
+    # Stable sort: ties keep the given order, so the result is deterministic.
+    return [index[i] for i in np.argsort(centres @ axis, kind="stable")]

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from geometry.blocks import Block
-from geometry.pose import Pose
+from geometry.pose import Pose, axis_angle_quat
 from geometry.samples import random_quaternion
 from geometry.scene import Scene
 
@@ -23,10 +23,14 @@ from .base import SettleBackend, settle
 DROP_GAP = 0.05
 
 #: Simulated seconds a batch is given to come to rest.
-BATCH_SECONDS = 3.0
+BATCH_SECONDS = 2.0
 
 #: Most times the whole pile is released at the end, BATCH_SECONDS each.
-MAX_RELEASES = 4
+MAX_RELEASES = 6
+
+#: A pile counts as settled when no block moved more than this in a
+#: release, metres.
+SETTLED_MOTION = 0.01
 
 
 def pour(
@@ -37,6 +41,8 @@ def pour(
     backend: SettleBackend | None = None,
 ) -> list[tuple[int, Block, Pose]]:
     """Pour ``n`` of the scene's blocks onto its foundation.
+
+    In a section scene the blocks turn about y only and fill the slice.
 
     Parameters
     ----------
@@ -73,7 +79,10 @@ def pour(
             if len(wave) == min(batch, n - len(placed)):
                 break
             attempts += 1
-            y = rng.uniform(prism.y_start + r, prism.y_end - r)
+            if scene.kind == "section":
+                y = (prism.y_start + prism.y_end) / 2  # a section's blocks fill the slice
+            else:
+                y = rng.uniform(prism.y_start + r, prism.y_end - r)
             x = rng.uniform(-prism.bottom_half_width, prism.bottom_half_width)
             near = tops[np.hypot(tops[:, 0] - x, tops[:, 1] - y) < 2 * r] if len(tops) else tops
             ground = float(scene.foundation.height_at(np.array([[x, y]]))[0])
@@ -84,7 +93,10 @@ def pour(
             half = prism.bottom_half_width + frac * (prism.top_half_width - prism.bottom_half_width)
             if abs(x) > max(half - 0.5 * r, 0.0):
                 continue
-            q = random_quaternion(rng)
+            if scene.kind == "section":
+                q = axis_angle_quat(np.array([0.0, 1.0, 0.0]), rng.uniform(-np.pi, np.pi))
+            else:
+                q = random_quaternion(rng)
             pose = Pose([x, y, 0.0], q)
             low = pose.apply(block.vertices)[:, 2].min()
             centre = np.array([x, y, z_top + DROP_GAP - low])
@@ -98,15 +110,16 @@ def pour(
         # way; the rest of the pile is held fixed, so that a wave costs the
         # same however large the pile is.
         xy = np.array([c[:2] for c in centres])
-        nearby = [k for k, _, p in placed if np.min(np.hypot(*(xy - p.position[:2]).T)) < 3 * r]
+        nearby = [k for k, _, p in placed if np.min(np.hypot(*(xy - p.position[:2]).T)) < 2 * r]
         result = settle(scene, placed + wave, seconds=BATCH_SECONDS, seed=int(rng.integers(2**31)),
                         backend=backend, movable=nearby + [k for k, _, _ in wave])
         placed = [(k, b, result.poses[k]) for k, b, _ in placed + wave]
         tops = np.array([(*p.position[:2], p.apply(b.vertices)[:, 2].max()) for _, b, p in placed])
-    # Release the whole pile until it is at rest.
+    # Release the whole pile until no block moves more than SETTLED_MOTION in
+    # a release (a few may go on rocking in place on a leg for longer).
     for _ in range(MAX_RELEASES):
         result = settle(scene, placed, seconds=BATCH_SECONDS, seed=int(rng.integers(2**31)), backend=backend)
         placed = [(k, b, result.poses[k]) for k, b, _ in placed]
-        if result.at_rest:
+        if result.at_rest or result.max_displacement_m <= SETTLED_MOTION:
             break
     return placed

@@ -190,7 +190,7 @@ class PymunkBackend(SettleBackend):
             state = np.array([(*b.velocity, b.angular_velocity, *b.position) for b in free]).reshape(-1, 5)
             if not np.isfinite(state).all():
                 raise RuntimeError(f"pymunk diverged at step {steps} (non-finite state)")
-            if progress is not None and t >= next_report:
+            if progress is not None and (t >= next_report or steps == total):
                 progress(t, seconds)
                 next_report = t + 0.1
             zeros = np.zeros(len(free))

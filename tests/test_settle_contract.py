@@ -194,7 +194,7 @@ class SettleBackendContract:
             assert [x.stable for x in a.blocks] == [x.stable for x in b.blocks], name
 
     def test_same_seed_is_bit_identical_and_seed_matters(self, make_backend, section):
-        placed = stack([0.0, 0.35, 0.35])  # the top block leans out and falls
+        placed = stack([0.0, 0.45, 0.45])  # the top two lean out past the edge and fall
         runs = [settle(section, placed, seed=s, backend=make_backend()) for s in (3, 3, 4)]
 
         def state(r):
