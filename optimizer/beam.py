@@ -106,9 +106,9 @@ class BeamSearch(Strategy):
     name = "beam"
 
     def __init__(self, width: int = 4, lookahead: int = 3, jitter: int = 2, fill: int = 4,
-                 jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 12,
+                 jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 10,
                  patience: int = 4, accept: Callable[[Problem, Build, Candidate], bool] | None = None,
-                 origin: tuple[float, float] | None = None, restarts: int = 4, share: float = 0.6,
+                 origin: tuple[float, float] | None = None, restarts: int = 4, share: float = 0.75,
                  judge: Callable[[Problem, Build], bool] | None = None):
         self.width = width
         self.lookahead = lookahead

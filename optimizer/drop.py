@@ -41,6 +41,10 @@ class Shape:
     highs : (k,) float, metres: highest z of each piece
     xy_boxes : (k, 2, 2) float, metres: footprint boxes of the pieces
     radius_xy : float, metres: footprint radius about the centroid
+    lower, upper : list of (edges (e, 2, 3), vertices (v, 3)) per piece
+        The edges and vertices of each piece's downward-facing (lower) and
+        upward-facing (upper) faces: only a moving piece's lower side and a
+        fixed piece's upper side can meet first.
     """
 
     block: Block
@@ -50,7 +54,8 @@ class Shape:
     highs: np.ndarray
     xy_boxes: np.ndarray
     radius_xy: float
-    edges: list[np.ndarray] = field(repr=False)
+    lower: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
+    upper: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
 
     @classmethod
     def of(cls, block: Block, quaternion: np.ndarray) -> Shape:
@@ -60,8 +65,20 @@ class Shape:
         highs = np.array([p.vertices[:, 2].max() for p in pieces])
         boxes = np.array([[p.vertices[:, :2].min(axis=0), p.vertices[:, :2].max(axis=0)] for p in pieces])
         radius = max(float(np.linalg.norm(p.vertices[:, :2], axis=1).max()) for p in pieces)
-        edges = [p.vertices[p.edges] for p in pieces]  # (e, 2, 3) each
-        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, edges)
+        lower = [_side(p, -1.0) for p in pieces]
+        upper = [_side(p, 1.0) for p in pieces]
+        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, lower, upper)
+
+
+def _side(piece: ConvexPolytope, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """Edges ``(e, 2, 3)`` and vertices ``(v, 3)`` of the faces whose normals point up (+1) or down (-1)."""
+    tri = piece.vertices[piece.faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    facing = sign * n[:, 2] > 1e-9 * np.linalg.norm(n, axis=1)
+    faces = piece.faces[facing]
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    e = np.unique(np.sort(e, axis=1), axis=0)
+    return piece.vertices[e], piece.vertices[np.unique(faces)]
 
 
 def _segment_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -78,16 +95,20 @@ def _segment_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return p[ii, 0] + t[ii, jj, None] * r[ii, 0]
 
 
-def rest_height(moving: ConvexPolytope, moving_edges: np.ndarray, fixed: ConvexPolytope,
-                fixed_edges: np.ndarray, offset_xy: np.ndarray) -> float:
+def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarray], fixed: ConvexPolytope,
+                fixed_upper: tuple[np.ndarray, np.ndarray], offset_xy: np.ndarray) -> float:
     """Lowest height ``z`` at which ``moving + (offset_xy, z)`` clears ``fixed``.
 
     Returns ``-inf`` when their footprints do not overlap (lowering never
-    meets). ``moving`` is given with its reference point at the origin.
+    meets). ``moving`` is given with its reference point at the origin;
+    ``moving_lower`` and ``fixed_upper`` are the (edges, vertices) of the
+    moving piece's lower side and the fixed piece's upper side, whose
+    projections hold every breakpoint of bottom_P and top_Q.
     """
-    mv = moving.vertices[:, :2] + offset_xy
-    me = moving_edges[:, :, :2] + offset_xy
-    pts = np.concatenate([mv, fixed.vertices[:, :2], _segment_crossings(me, fixed_edges[:, :, :2])])
+    me, mvert = moving_lower
+    fe, fvert = fixed_upper
+    mv = mvert[:, :2] + offset_xy
+    pts = np.concatenate([mv, fvert[:, :2], _segment_crossings(me[:, :, :2] + offset_xy, fe[:, :, :2])])
     # Vertical extents of both pieces on these lines; the moving one back at the origin.
     q_lo, q_hi = column_intervals(fixed.normals, fixed.offsets, pts)
     p_lo, p_hi = column_intervals(moving.normals, moving.offsets, pts - offset_xy)
@@ -111,7 +132,8 @@ class DropWorld:
     def __init__(self, foundation: Foundation, cell: float = 2.0):
         self.foundation = foundation
         self.cell = cell
-        self._placed: dict[int, tuple[Shape, np.ndarray, list[ConvexPolytope], list[np.ndarray]]] = {}
+        self._placed: dict[int, tuple[Shape, np.ndarray, list[ConvexPolytope],
+                                      list[tuple[np.ndarray, np.ndarray]]]] = {}
         self._grid: dict[tuple[int, int], set[int]] = {}
         self._max_r = 0.0
 
@@ -127,8 +149,8 @@ class DropWorld:
         position = np.asarray(position, dtype=float)
         pieces = [ConvexPolytope(p.vertices + position, p.faces, p.normals, p.offsets + p.normals @ position)
                   for p in shape.pieces]
-        edges = [e + position for e in shape.edges]
-        self._placed[key] = (shape, position, pieces, edges)
+        upper = [(e + position, v + position) for e, v in shape.upper]
+        self._placed[key] = (shape, position, pieces, upper)
         for cell in self._cells(position[0], position[1], shape.radius_xy):
             self._grid.setdefault(cell, set()).add(key)
         self._max_r = max(self._max_r, shape.radius_xy)
@@ -212,7 +234,7 @@ class DropWorld:
         for bound, k, i, fp, fe in pairs:
             if bound < best - tol.drop_resolution:
                 break
-            z = rest_height(shape.pieces[i], shape.edges[i], fp, fe, offset)
+            z = rest_height(shape.pieces[i], shape.lower[i], fp, fe, offset)
             if z > -np.inf:
                 heights.append((z, k))
                 best = max(best, z)
@@ -239,7 +261,7 @@ class DropWorld:
                     if (fb[1, 2] - shape.lows[i] <= floor or mb[0, 0] > fb[1, 0] or fb[0, 0] > mb[1, 0]
                             or mb[0, 1] > fb[1, 1] or fb[0, 1] > mb[1, 1]):
                         continue
-                    if rest_height(shape.pieces[i], shape.edges[i], fp, fe, offset) > floor:
+                    if rest_height(shape.pieces[i], shape.lower[i], fp, fe, offset) > floor:
                         out.add(k)
                         break
         return out

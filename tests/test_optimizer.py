@@ -16,7 +16,6 @@ from geometry.samples import random_quaternion
 from geometry.scene import load_scene
 from optimizer.anneal import Annealing, energy_of
 from optimizer.api import optimize
-from optimizer.base import Problem
 from optimizer.beam import BeamSearch
 from optimizer.cpsat import CpSat
 from optimizer.drop import DropWorld, Shape
@@ -65,7 +64,8 @@ def test_hangings_are_the_documented_orientations(shake, family):
     elif family == "level":  # one leg straight down, three up at the same height
         assert up[-1] == pytest.approx(-1.0) and np.ptp(up[:3]) < 1e-9
     else:  # two up, two down, symmetric
-        assert up[0] == pytest.approx(up[1]) and up[2] == pytest.approx(up[3]) and up[0] == pytest.approx(-up[3])
+        assert up[0] == pytest.approx(up[1]) and up[2] == pytest.approx(up[3])
+        assert up[0] == pytest.approx(-up[3])
     assert set(BASE) == set(FAMILIES)
 
 
@@ -78,7 +78,8 @@ def test_tuned_lattices_are_crane_feasible(name):
     params = np.array([lat.p, lat.w, lat.q, lat.u, lat.v, lat.yaw_a, lat.yaw_b])
     # The penalty adds 20 per metre a block stops short of the ground: zero means feasible.
     assert _lattice_penalty(params, block, (lat.family_a, lat.family_b)) == pytest.approx(lat.area_per_block)
-    tighter = InterlockLattice(lat.p * 0.9, lat.w * 0.9, lat.q * 0.9, lat.u * 0.9, lat.v * 0.9, lat.yaw_a, lat.yaw_b)
+    f = 0.9
+    tighter = InterlockLattice(lat.p * f, lat.w * f, lat.q * f, lat.u * f, lat.v * f, lat.yaw_a, lat.yaw_b)
     p2 = np.array([tighter.p, tighter.w, tighter.q, tighter.u, tighter.v, tighter.yaw_a, tighter.yaw_b])
     assert _lattice_penalty(p2, block, ("crown", "level")) > tighter.area_per_block + 0.01
 
@@ -190,7 +191,8 @@ def test_cli_optimize_writes_the_contract_keys(tmp_path):
               "--strategy", "beam", "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
-    assert set(d) >= {"porosity_percent", "blocks", "collisions", "out_of_tolerance", "stable", "seconds", "path"}
+    assert set(d) >= {"porosity_percent", "blocks", "collisions", "out_of_tolerance", "stable", "seconds",
+                      "path"}
     assert d["path"] == str(out) and out.exists()
     assert json.loads(out.read_text())["format"] == "shoha-layout/1"
 

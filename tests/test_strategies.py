@@ -36,7 +36,8 @@ def tiny():
 
 
 def problem(scene, seconds: float = 60.0) -> Problem:
-    return Problem(scene, scene.required_blocks, scene.target_porosity, lattice_for(scene.block, scene.block_type),
+    lattice = lattice_for(scene.block, scene.block_type)
+    return Problem(scene, scene.required_blocks, scene.target_porosity, lattice,
                    deadline=time.monotonic() + seconds)
 
 
