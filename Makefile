@@ -32,6 +32,11 @@ test: $(VENV)/.installed-test
 test-slow: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q -m slow
 
+# Every benchmark in benchmarks/ (docs/benchmarks.md); results in benchmarks/results/.
+# About 20 minutes on 2 cores.
+bench: $(VENV)/.installed-test
+	$(BIN)/python benchmarks/run_all.py
+
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check geometry settle optimizer benchmarks tests
 
