@@ -90,6 +90,7 @@ from geometry.pose import Pose
 from geometry.scene import Scene
 
 from .base import Progress, RestMonitor, Run, SettleBackend, SettleBody
+from .section import foundation_profile
 
 #: Thickness of the static foundation box below z = 0, and of the solid part
 #: of a rough height field below its lowest point, metres. Thick enough that
@@ -101,10 +102,10 @@ FOUNDATION_THICKNESS = 2.0
 #: long before it could fall off the edge.
 FOUNDATION_MARGIN = 10.0
 
-#: MuJoCo arena bytes per free block, measured at ~60 kB per block for piles
-#: of 75 to 1000 shake-4t blocks (data.maxuse_arena); four times that leaves
+#: MuJoCo arena bytes per free block. Measured at 16-18 kB per block on poured
+#: piles of 75 to 1000 shake-4t blocks (data.maxuse_arena); four times that leaves
 #: room for a collapsing pile's extra contacts.
-ARENA_PER_BLOCK = 256 * 1024
+ARENA_PER_BLOCK = 64 * 1024
 
 
 class MujocoBackend(SettleBackend):
@@ -257,9 +258,12 @@ class MujocoBackend(SettleBackend):
 
         MuJoCo splits each grid cell into two triangles where the foundation
         interpolates bilinearly; the two agree at the nodes and differ inside
-        a cell by a fraction of the amplitude.
+        a cell by a fraction of the amplitude. A section scene's foundation is
+        extruded along y like its blocks (``section.foundation_profile``).
         """
         xs, ys, h = scene.foundation.grid
+        if scene.kind == "section":
+            h = np.repeat(foundation_profile(scene)[1][:, None], len(ys), axis=1)
         lo, hi = float(h.min()), float(h.max())
         span = max(hi - lo, tol.distance)
         field = spec.add_hfield()

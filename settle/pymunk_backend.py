@@ -45,7 +45,7 @@ from geometry.errors import InputError
 from geometry.scene import Scene
 
 from .base import Progress, RestMonitor, Run, SettleBackend, SettleBody
-from .section import from_plane, outlines, to_plane
+from .section import foundation_profile, from_plane, outlines, to_plane
 
 #: Depth of the static foundation below its top, and its margin past the
 #: blocks and the scene, metres (as in the MuJoCo backend).
@@ -151,9 +151,7 @@ class PymunkBackend(SettleBackend):
         if f.kind == "rough":
             # The height field's profile along the middle of the slice, one
             # convex quadrilateral per grid cell.
-            xs = f.grid[0]
-            y = scene.length / 2
-            zs = f.height_at(np.column_stack([xs, np.full(len(xs), y)]))
+            xs, zs = foundation_profile(scene)
             bottom = -f.amplitude - FOUNDATION_THICKNESS
             quads = [[(xs[i], bottom), (xs[i + 1], bottom), (xs[i + 1], zs[i + 1]), (xs[i], zs[i])]
                      for i in range(len(xs) - 1)]

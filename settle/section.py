@@ -29,6 +29,7 @@ from geometry.blocks import Block
 from geometry.constants import tol
 from geometry.errors import InputError
 from geometry.pose import Pose, axis_angle_quat
+from geometry.scene import Scene
 
 #: Relative difference between a piece's volume and (outline area) x (y
 #: extent) tolerated for it to count as a prism along y; a prism meets it to
@@ -97,3 +98,22 @@ def to_plane(pose: Pose, where: str = "block") -> tuple[tuple[float, float], flo
 def from_plane(position: tuple[float, float], angle: float, y: float) -> Pose:
     """The 3D pose of a 2D position (x, z) and counter-clockwise angle, at crest coordinate ``y``."""
     return Pose([position[0], y, position[1]], axis_angle_quat(np.array([0.0, 1.0, 0.0]), -angle))
+
+
+def foundation_profile(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """The foundation of a section scene: its profile along the middle of the slice.
+
+    A section scene is extruded along y, its foundation too: both backends
+    use the rough underlayer's heights at ``y = length / 2`` for the whole
+    slice, so that a layout resting on the profile in 2D rests on it in 3D.
+
+    Returns
+    -------
+    xs : (n,) float, metres
+        The height field's x nodes.
+    zs : (n,) float, metres
+        The foundation's height there.
+    """
+    xs = scene.foundation.grid[0]
+    y = scene.length / 2
+    return xs, scene.foundation.height_at(np.column_stack([xs, np.full(len(xs), y)]))

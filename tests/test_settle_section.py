@@ -12,10 +12,11 @@ from hypothesis import strategies as st
 from geometry.blocks import get_block
 from geometry.errors import InputError
 from geometry.pose import Pose, axis_angle_quat
-from geometry.scene import Scene, load_scene
+from geometry.scene import Scene, load_scene, parse_scene
 from settle import MujocoBackend, PymunkBackend, settle
 from settle.pour import pour
-from settle.section import from_plane, outlines, to_plane
+from settle.section import foundation_profile, from_plane, outlines, to_plane
+from tests.conftest import ROOT
 from tests.test_settle_contract import MU, box, incline, on_ground, stack
 
 Y = np.array([0.0, 1.0, 0.0])
@@ -107,3 +108,34 @@ def test_poured_section_pile_is_stable_in_both_engines(section, section_pile):
     for backend in (PymunkBackend(), MujocoBackend()):
         r = settle(section, section_pile, backend=backend)
         assert r.stable, backend.name
+
+
+@pytest.fixture(scope="module")
+def rough_section() -> Scene:
+    text = (ROOT / "geometry" / "scenes" / "mini-section.toml").read_text()
+    text += '\n[foundation]\nkind = "rough"\namplitude_m = 0.15\ncell_m = 0.5\nseed = 2\n'
+    return parse_scene(text, source="rough-section", base_dir=None)
+
+
+def test_rough_section_foundation_is_extruded_in_3d(rough_section):
+    # MuJoCo's height field follows the 2D profile at every y of the slice.
+    import mujoco
+
+    xs, zs = foundation_profile(rough_section)
+    assert np.ptp(zs) > 0.1  # it is rough
+    model = MujocoBackend().build(rough_section, [])
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    geomid = np.zeros(1, dtype=np.int32)
+    for i in range(1, len(xs) - 1, 3):
+        for y in (0.05, 0.5, 0.95):
+            dist = mujoco.mj_ray(model, data, np.array([xs[i], y, 5.0]), np.array([0.0, 0.0, -1.0]),
+                                 None, 1, -1, geomid)
+            assert 5.0 - dist == pytest.approx(zs[i], abs=1e-6)
+
+
+def test_pile_on_rough_section_same_verdict_in_both_engines(rough_section):
+    pile = pour(rough_section, 15, seed=2, backend=PymunkBackend())
+    assert min(p.position[2] for _, _, p in pile) < 0.3  # some rest in the hollows
+    for backend in (PymunkBackend(), MujocoBackend()):
+        assert settle(rough_section, pile, backend=backend).stable, backend.name
