@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from geometry.blocks import LEG_DIRECTIONS, Block
+from geometry.blocks import LEG_DIRECTIONS, Block, get_block
 from geometry.pose import Pose, axis_angle_quat, quat_multiply
 from geometry.scene import Scene, parse_scene
 from settle import MujocoBackend, settle
@@ -142,8 +142,6 @@ def test_shake_on_one_leg_on_a_slope_stands_iff_com_is_over_its_face(mini, shake
 
 
 def get_slab() -> Block:
-    from geometry.blocks import get_block
-
     return get_block("box:8x8x1")
 
 
@@ -236,3 +234,18 @@ def test_shake_settles_onto_rough_foundation(rough, shake):
     assert first.blocks[0].displacement_m < 0.5 and first.at_rest
     again = settle(rough, [(0, shake, first.poses[0])])
     assert again.stable and again.max_displacement_m < 2e-3
+
+
+@pytest.mark.parametrize("overlap", [0.005, 0.02])
+def test_overlap_push_out_speed_follows_the_contact_time_constant(mini, overlap):
+    # A critically damped contact of time constant tau pushes an overlap p out
+    # at about p / (2 tau) at most, and leaves the block touching, not flying:
+    # even 2 cm (twice PhysX's contact offset) is no launch.
+    b = get_block("box:2x2x1")
+    placed = [(0, b, Pose([0.0, 6.0, 0.5], [1, 0, 0, 0])),
+              (1, b, Pose([0.0, 6.0, 1.5 - overlap], [1, 0, 0, 0]))]
+    backend = MujocoBackend(check_every=1)
+    r = settle(mini, placed, movable=[1], backend=backend)
+    tau = backend.solref[0]
+    assert r.peak_speed <= overlap / (2 * tau)
+    assert r.stable and r.max_displacement_m == pytest.approx(overlap, abs=1e-3)
