@@ -71,14 +71,12 @@ def pour(
         batch = max(4, int(footprint / 12.0))
     placed: list[tuple[int, Block, Pose]] = []
     tops = np.zeros((0, 3))  # (x, y, highest z) of each placed block
-    attempts = 0
     while len(placed) < n:
         wave: list[tuple[int, Block, Pose]] = []
         centres: list[np.ndarray] = []
         for _ in range(50 * batch):
             if len(wave) == min(batch, n - len(placed)):
                 break
-            attempts += 1
             if scene.kind == "section":
                 y = (prism.y_start + prism.y_end) / 2  # a section's blocks fill the slice
             else:
@@ -107,8 +105,8 @@ def pour(
         if not wave:
             raise RuntimeError(f"pour: no room for more blocks after {len(placed)} of {n}")
         # The wave falls onto the pile, and the blocks it lands among may give
-        # way; the rest of the pile is held fixed, so that a wave costs the
-        # same however large the pile is.
+        # way; the rest of the pile is held fixed, so that a wave costs about
+        # the same however large the pile has grown.
         xy = np.array([c[:2] for c in centres])
         nearby = [k for k, _, p in placed if np.min(np.hypot(*(xy - p.position[:2]).T)) < 2 * r]
         result = settle(scene, placed + wave, seconds=BATCH_SECONDS, seed=int(rng.integers(2**31)),

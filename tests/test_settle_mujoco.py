@@ -249,3 +249,18 @@ def test_overlap_push_out_speed_follows_the_contact_time_constant(mini, overlap)
     tau = backend.solref[0]
     assert r.peak_speed <= overlap / (2 * tau)
     assert r.stable and r.max_displacement_m == pytest.approx(overlap, abs=1e-3)
+
+
+def test_turning_and_moving_the_whole_layout_leaves_the_verdict(mini, shake):
+    # STYLE.md, "Check invariance": two blocks standing on three legs and one
+    # hanging 0.8 m above the ground, turned about the vertical by 0.6 rad and
+    # moved, settle to the same verdicts and displacements.
+    placed = [(0, shake, standing(shake, -3.0, 6.0, 0.3)),
+              (1, shake, standing(shake, 0.5, 6.0, 1.1, ground=0.8)),
+              (2, shake, standing(shake, 3.0, 6.0, 2.0))]
+    turn = Pose([1.0, -2.0, 0.0], axis_angle_quat([0, 0, 1], 0.6))
+    moved = [(k, b, turn.compose(p)) for k, b, p in placed]
+    a, b = settle(mini, placed), settle(mini, moved)
+    assert [x.stable for x in a.blocks] == [x.stable for x in b.blocks] == [True, False, True]
+    np.testing.assert_allclose([x.displacement_m for x in a.blocks], [x.displacement_m for x in b.blocks],
+                               atol=2e-3)

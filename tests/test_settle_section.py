@@ -139,3 +139,14 @@ def test_pile_on_rough_section_same_verdict_in_both_engines(rough_section):
     assert min(p.position[2] for _, _, p in pile) < 0.3  # some rest in the hollows
     for backend in (PymunkBackend(), MujocoBackend()):
         assert settle(rough_section, pile, backend=backend).stable, backend.name
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.floats(-1.0, 1.0).filter(lambda d: abs(abs(d) - 0.6) > 0.02))
+def test_two_box_stack_stands_iff_top_centre_is_over_the_lower_box(offset):
+    # Property: a 1.2 m box on another stands iff its centre is within 0.6 m
+    # of the lower one's centre line, in both engines.
+    section = load_scene("mini-section")
+    for backend in (PymunkBackend(), MujocoBackend()):
+        r = settle(section, stack([0.0, offset]), backend=backend)
+        assert r.stable is (abs(offset) < 0.6), backend.name
