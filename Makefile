@@ -23,8 +23,9 @@ $(VENV)/.installed-test: pyproject.toml $(VENV)/.installed
 demo: $(VENV)/.installed
 	mkdir -p $(OUT)
 	$(BIN)/shoha scene info mini
-	$(BIN)/shoha check scenes/mini-25.json
-	$(BIN)/shoha porosity scenes/mini-25.json --method voxel-any --divisions 100
+	$(BIN)/shoha optimize mini --out $(OUT)/mini.json --seed 1
+	$(BIN)/shoha check $(OUT)/mini.json
+	$(BIN)/shoha settle $(OUT)/mini.json
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q

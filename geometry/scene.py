@@ -114,6 +114,9 @@ class Scene:
     foundation : Foundation
     base_dir : str or None
         Folder that relative ``mesh:`` block paths resolve against.
+    source : str or None
+        How to find the scene again: a built-in name, or the scene file's
+        absolute path (see :meth:`reference`).
     """
 
     name: str
@@ -128,6 +131,19 @@ class Scene:
     allowance: Allowance
     foundation: Foundation = field(default_factory=Foundation)
     base_dir: str | None = None
+    source: str | None = None
+
+    def reference(self, layout_dir: str | os.PathLike | None = None) -> str:
+        """The ``scene`` value of a layout file that refers to this scene.
+
+        A built-in name as it is; a scene file as a path relative to the
+        layout's folder (CONTRACT.md: resolved relative to the layout file).
+        """
+        if self.source is None or self.source in builtin_scenes():
+            return self.source or self.name
+        if layout_dir is None:
+            return self.source
+        return os.path.relpath(self.source, os.path.abspath(layout_dir))
 
     @property
     def block(self) -> Block:
@@ -177,7 +193,7 @@ def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = Non
     spec = str(spec)
     if spec in builtin_scenes():
         text = (resources.files("geometry") / "scenes" / f"{spec}.toml").read_text()
-        return parse_scene(text, source=spec, base_dir=None)
+        return parse_scene(text, source=spec, base_dir=None, reference=spec)
     path = Path(spec).expanduser()
     if not path.is_absolute() and base_dir is not None and (Path(base_dir) / path).is_file():
         path = Path(base_dir) / path
@@ -188,7 +204,8 @@ def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = Non
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read scene ({exc})") from None
-    return parse_scene(text, source=str(path), base_dir=str(path.resolve().parent))
+    return parse_scene(text, source=str(path), base_dir=str(path.resolve().parent),
+                       reference=str(path.resolve()))
 
 
 _TOP_KEYS = {"name", "kind", "block", "target_porosity_percent", "required_blocks",
@@ -198,8 +215,11 @@ _TOLERANCE_KEYS = {"crest_rise_m", "crest_widening_m", "slope_lengthening_m", "e
 _FOUNDATION_KEYS = {"kind", "amplitude_m", "cell_m", "seed"}
 
 
-def parse_scene(text: str, source: str, base_dir: str | None) -> Scene:
-    """Build a Scene from TOML text; ``source`` names it in error messages."""
+def parse_scene(text: str, source: str, base_dir: str | None, reference: str | None = None) -> Scene:
+    """Build a Scene from TOML text; ``source`` names it in error messages.
+
+    ``reference`` is how a layout file finds it again (built-in name or path).
+    """
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -276,7 +296,7 @@ def parse_scene(text: str, source: str, base_dir: str | None) -> Scene:
     return Scene(
         name=name, kind=kind, block_type=block_type, crest_width=crest_width, height=height,
         slope=slope, length=length, target_porosity=target, required_blocks=required,
-        allowance=allowance, foundation=foundation, base_dir=base_dir,
+        allowance=allowance, foundation=foundation, base_dir=base_dir, source=reference,
     )
 
 

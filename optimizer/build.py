@@ -188,9 +188,14 @@ class Build:
         return [(k, self.block, self.poses[k]) for k in self.order]
 
     def layout(self, extra: dict | None = None) -> Layout:
-        """The build as a layout: ids 0..n-1 in crane order."""
+        """The build as a layout: ids 0..n-1 in crane order.
+
+        Its ``scene`` is the scene's built-in name or absolute file path;
+        :func:`geometry.layout.write_layout` callers that know the output
+        folder make it relative (``Scene.reference``).
+        """
         blocks = [Placement(i, self.scene.block_type, self.poses[k]) for i, k in enumerate(self.order)]
-        return Layout(self.scene.name, blocks, dict(extra or {}))
+        return Layout(self.scene.reference(), blocks, dict(extra or {}), self.scene.base_dir)
 
     def heights(self) -> np.ndarray:
         return np.array([self.poses[k].position[2] for k in self.order])

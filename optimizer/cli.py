@@ -192,8 +192,12 @@ def convert(save: str, source: str, out: str, block_type: str, scene_name: str, 
     from geometry.layout import write_layout
     from geometry.unity import read_unity_save
 
+    from geometry.scene import load_scene
+
     path = _check_out(out)
-    layout = read_unity_save(save, scene=scene_name, block=block_type, origin=_parse_origin(origin))
+    # The layout names its scene relative to itself (CONTRACT.md), not to the working folder.
+    reference = load_scene(scene_name).reference(path.parent)
+    layout = read_unity_save(save, scene=reference, block=block_type, origin=_parse_origin(origin))
     write_layout(layout, path)
     _emit({"blocks": len(layout.blocks), "path": str(path)}, as_json,
           f"wrote {len(layout.blocks)} blocks to {path}")

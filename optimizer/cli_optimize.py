@@ -64,6 +64,7 @@ def register(cli: click.Group) -> None:
         with _Progress(scene.required_blocks, scene.target_porosity) as progress:
             result = optimize(scene, seed=seed, time_limit=time_limit, strategies=strategies,
                               settle_layout=not no_settle, report=progress.update)
+        result.layout.scene = scene.reference(path.parent)
         write_layout(result.layout, path)
         result.path = str(path)
         payload = result.to_dict()

@@ -100,6 +100,20 @@ def test_convert_unity_save(tmp_path):
     assert block["position"] == [2.0, 3.0, 2.0] and block["type"] == "shake-4t"
 
 
+def test_convert_names_a_scene_file_relative_to_the_layout(tmp_path):
+    (tmp_path / "scenes").mkdir()
+    (tmp_path / "out").mkdir()
+    scene = tmp_path / "scenes" / "s.toml"
+    scene.write_text((ROOT / "tests" / "data" / "tiny.toml").read_text())
+    save = tmp_path / "save.json"
+    save.write_text(json.dumps({"blocks": []}))
+    out = tmp_path / "out" / "l.json"
+    r = shoha("convert", str(save), "--from", "unity", "--out", str(out), "--scene", "scenes/s.toml", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(out.read_text())["scene"] == "../scenes/s.toml"
+    assert shoha("check", str(out), cwd=tmp_path / "out").returncode == 0
+
+
 def _broken_stl(tmp_path):
     mesh = trimesh.creation.box([1, 1, 1])
     mesh.update_faces([True] * (len(mesh.faces) - 1) + [False])

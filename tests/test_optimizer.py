@@ -194,7 +194,13 @@ def test_cli_optimize_writes_the_contract_keys(tmp_path):
     assert set(d) >= {"porosity_percent", "blocks", "collisions", "out_of_tolerance", "stable", "seconds",
                       "path"}
     assert d["path"] == str(out) and out.exists()
-    assert json.loads(out.read_text())["format"] == "shoha-layout/1"
+    written = json.loads(out.read_text())
+    assert written["format"] == "shoha-layout/1"
+    # The scene is a file here: the layout names it relative to itself, and it resolves.
+    assert not written["scene"].startswith("/")
+    c = shoha("check", str(out), "--json")
+    assert c.returncode == 0, c.stderr
+    assert json.loads(c.stdout)["blocks"] == d["blocks"]
 
 
 def test_cli_optimize_bad_input(tmp_path):
