@@ -47,7 +47,7 @@ import manifold3d as m3
 import numpy as np
 
 from .blocks import Block
-from .clip import volume_inside
+from .clip import volume_inside, volumes_inside
 from .collision import overlap_groups
 from .constants import MAX_VOXELS, tol
 from .errors import InputError
@@ -157,7 +157,7 @@ def exact_filled_volume(prism: ConvexPolytope, placed: Placed, assume_disjoint: 
         Skip the overlap search, for callers that already know no two blocks
         overlap (the optimizer rejects collisions before it asks).
     """
-    contrib = [volume_inside(b, p, prism) for _, b, p in placed]
+    contrib = volumes_inside(placed, prism)  # blocks crossing the same faces are cut together
     total = float(sum(contrib))
     if assume_disjoint or len(placed) < 2:
         return total
