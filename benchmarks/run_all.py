@@ -5,7 +5,8 @@
 alphabetically, so a new benchmark is run without editing this file. Each
 script writes its own results to ``benchmarks/results/``; this one adds
 ``run_all.csv`` and ``.json``: every script's wall time and exit status,
-the total, and the machine.
+the total, and the machine; then ``summary.md``, the headline figures of
+every result file (``summary.py``).
 
 Run::
 
@@ -20,11 +21,12 @@ import sys
 import time
 from pathlib import Path
 
+import summary
 from common import BENCH, ROOT, Run
 
 ORDER = ("porosity_speed", "paper_tables", "collision_speed", "speed_vs_accuracy", "scaling",
          "settle_speed")
-NOT_BENCHMARKS = {"common", "run_all"}
+NOT_BENCHMARKS = {"common", "run_all", "summary"}
 
 
 def scripts() -> list[Path]:
@@ -55,6 +57,7 @@ def main() -> int:
     rows.append({"script": "TOTAL", "wall_s": total, "exit_status": int(bool(failed))})
     run.params["total_wall_s"] = round(total, 1)
     run.csv("run_all", rows)
+    summary.main()
     print(f"\nmake bench: {len(todo)} scripts in {total / 60:.1f} min"
           + (f"; FAILED: {', '.join(failed)}" if failed else ""))
     return 1 if failed else 0

@@ -157,7 +157,7 @@ def exact_filled_volume(prism: ConvexPolytope, placed: Placed, assume_disjoint: 
         Skip the overlap search, for callers that already know no two blocks
         overlap (the optimizer rejects collisions before it asks).
     """
-    contrib = volumes_inside(placed, prism)  # blocks crossing the same faces are cut together
+    contrib = volumes_inside(placed, prism)  # every straddling block cut in one vectorised pass
     total = float(sum(contrib))
     if assume_disjoint or len(placed) < 2:
         return total
