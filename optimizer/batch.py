@@ -472,6 +472,8 @@ def run_batch(
     finished = {str(r.get("item")) for r in out.read() if done is None or done(r)}
     todo = [it for it in items if it.key not in finished]
     summary = BatchSummary(items=len(items), skipped=len(items) - len(todo), path=str(out.path))
+    # Connect before any progress shows: a wrong address is bad usage.
+    client = _connect(scheduler) if scheduler is not None and todo else None
     if on_start is not None:
         on_start(len(todo), summary.skipped)
 
@@ -484,9 +486,9 @@ def run_batch(
 
     if not todo:
         summary.runner = "none"
-    elif scheduler is not None:
+    elif client is not None:
         summary.runner = f"dask {scheduler}"
-        _run_dask(todo, task, scheduler, record)
+        _run_dask(todo, task, client, record)
     elif workers <= 1:
         summary.runner = "this process"
         for it in todo:
@@ -549,17 +551,23 @@ def _run_pool(todo: Sequence[Item], task: Callable[..., dict[str, Any]], workers
             break
 
 
-def _run_dask(todo: Sequence[Item], task: Callable[..., dict[str, Any]], scheduler: str,
-              record: Callable[[dict[str, Any]], None]) -> None:
-    """The same items on a Dask cluster; a task whose worker died is run again."""
+def _connect(scheduler: str) -> Any:
+    """A Dask client of the scheduler at ``scheduler``."""
     try:
-        from distributed import Client, as_completed
+        from distributed import Client
     except ImportError:
         raise InputError("--scheduler needs Dask: pip install 'shoha[dask]'") from None
     try:
-        client = Client(scheduler, timeout="10s", set_as_default=False)
-    except (OSError, TimeoutError) as exc:
+        return Client(scheduler, timeout="10s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
         raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+
+
+def _run_dask(todo: Sequence[Item], task: Callable[..., dict[str, Any]], client: Any,
+              record: Callable[[dict[str, Any]], None]) -> None:
+    """The items on a Dask cluster; a task whose workers kept dying is run again."""
+    from distributed import as_completed
+
     try:
         # Task keys are unique per run, so that two batches on one cluster never share a result.
         run = uuid.uuid4().hex[:12]
@@ -570,7 +578,7 @@ def _run_dask(todo: Sequence[Item], task: Callable[..., dict[str, Any]], schedul
             fut = client.submit(_call, task, it.key, it.args, pure=False,
                                 key=f"shoha-{run}-{_token(it.key)}-1")
             futures[fut] = it.key
-        queue = as_completed(list(futures))
+        queue = as_completed(list(futures), loop=client.loop)
         for fut in queue:
             key = futures.pop(fut)
             if fut.status == "finished":
