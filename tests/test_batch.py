@@ -290,3 +290,39 @@ def test_batch_optimize_writes_layouts_and_resumes(tmp_path):
     again = json.loads(shoha(*args, timeout=600).stdout)
     assert (again["ran"], again["skipped"]) == (0, 2)
     assert len(out.read_text().splitlines()) == 2
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(3600)
+def test_200_saves_on_a_local_cluster_resume_and_match_the_pool(cluster, tmp_path):
+    """Issue 5's acceptance: 200 saves on 2 Dask workers finish, resume after an
+    interruption, and give the rows of ``--workers 2`` (benchmarks/batch_cluster.py times it)."""
+    c, _ = cluster
+    folder = tmp_path / "saves"
+    make_saves(folder, 200)
+    items = 201  # and the bad save
+    common = [str(folder), "--reference", str(REFERENCE)]
+    pool = tmp_path / "pool.csv"
+    r = shoha("batch", "score", *common, "--out", str(pool), "--workers", "2", "--json", timeout=3000)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["ran"] == items
+
+    out = tmp_path / "dask.csv"
+    cmd = [str(Path(sys.executable).parent / "shoha"), "batch", "score", *common, "--out", str(out),
+           "--scheduler", c.scheduler_address]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        while proc.poll() is None:
+            if out.exists() and len(out.read_text().splitlines()) - 1 >= items // 2:
+                os.killpg(proc.pid, signal.SIGKILL)
+                break
+            time.sleep(0.1)
+    finally:
+        proc.wait(timeout=60)
+    assert proc.returncode == -signal.SIGKILL, "the batch finished before it could be interrupted"
+    before = rows_of(out)
+    r = shoha(*cmd[1:], "--json", timeout=3000)
+    assert r.returncode == 0, r.stderr
+    summary = json.loads(r.stdout)
+    assert summary["skipped"] == len(before) and summary["ran"] == items - len(before)
+    assert rows_of(out) == rows_of(pool)
