@@ -27,7 +27,7 @@ from geometry.scene import Scene
 from geometry.tolerance import outside_volume
 
 from .drop import DropWorld, Shape
-from .interlock import interlock
+from .interlock import BlockInterlock, interlock
 
 #: Sideways step of :func:`lift_out_of_tolerance`, metres.
 LIFT_STEP = 0.1
@@ -42,7 +42,7 @@ def _replace(layout: Layout, poses: dict[int, Pose]) -> Layout:
     return Layout(layout.scene, blocks, dict(layout.extra), layout.base_dir)
 
 
-def _carriers(scene: Scene, layout: Layout) -> tuple[dict[int, object], set[int]]:
+def _carriers(scene: Scene, layout: Layout) -> tuple[dict[int, BlockInterlock], set[int]]:
     """Interlock of each block, and the ids of blocks that something rests on.
 
     Block b rests on block a when they touch, b does not touch the

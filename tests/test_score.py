@@ -15,6 +15,8 @@ from pathlib import Path
 import manifold3d as m3
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from geometry.blocks import get_block
 from geometry.clip import volume_inside
@@ -342,3 +344,28 @@ def test_scene_mismatch_is_input_error(reference):
 
     with pytest.raises(InputError):
         score(load_scene("mini-section"), [], reference)
+
+
+_counts = st.integers(min_value=0, max_value=500)
+
+
+@settings(max_examples=200, deadline=None)
+@given(phi=st.floats(0.0, 100.0), ref_phi=st.floats(0.0, 100.0), blocks=_counts, required=_counts,
+       out=_counts, pairs=_counts, unstable=_counts, flagged=_counts, ref_flagged=_counts,
+       extra=st.sampled_from(["out", "pairs", "unstable", "flagged"]))
+def test_score_stays_in_range_and_one_more_fault_never_helps(phi, ref_phi, blocks, required, out, pairs,
+                                                              unstable, flagged, ref_flagged, extra):
+    args = {"porosity_percent": phi, "reference_porosity_percent": ref_phi, "target_porosity_percent": 56.0,
+            "blocks": blocks, "required_blocks": required, "out_of_tolerance": out, "collisions": pairs,
+            "unstable": unstable, "flagged": flagged, "reference_flagged": ref_flagged}
+    pens = penalties(**args)
+    assert all(0.0 <= p.points <= p.cap for p in pens)
+    total = sum(p.points for p in pens)
+    assert 0.0 <= 100.0 - total <= 100.0
+    worse = dict(args)
+    key = {"out": "out_of_tolerance", "pairs": "collisions", "unstable": "unstable",
+           "flagged": "flagged"}[extra]
+    worse[key] += 1
+    assert sum(p.points for p in penalties(**worse)) >= total
+    fewer = dict(args, blocks=max(0, blocks - 1))
+    assert sum(p.points for p in penalties(**fewer)) >= total
