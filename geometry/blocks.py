@@ -247,9 +247,12 @@ def shake_block() -> Block:
 
 # --- tetrapod ------------------------------------------------------------------
 
-# Tetrapod proportions: legs are truncated cones from the centre, base radius
-# 0.32 of the leg length, narrowing at 10 degrees (the issue's "about 10°").
-_TETRAPOD_BASE_RADIUS = 0.32
+# Tetrapod proportions: legs are truncated cones from the centre, narrowing at
+# 10 degrees (the issue's "about 10°"; the inventors' patent gives a half-angle
+# of 9-14 degrees). The base diameter is 0.85 of the leg length, the patent's
+# lower bound for leg length : base width (0.85-1.15), which gives a volume of
+# about 0.28 H^3, the figure commonly quoted for tetrapods.
+_TETRAPOD_BASE_RADIUS = 0.425
 _TETRAPOD_TAPER = np.radians(10.0)
 _TETRAPOD_SIDES = 12  # a 12-gon keeps each leg a small convex piece for FCL
 

@@ -186,8 +186,9 @@ def optimize(
     gap = {}
     for p in phases:
         if p["strategy"] == "cpsat" and "bound_m3" in p:
-            gap = {"layer": "ground", **{k: p[k] for k in ("heuristic_m3", "objective_m3", "bound_m3",
-                                                             "gap_percent", "optimal", "candidates")}}
+            gap = {"layer": "ground", **{k: p[k] for k in ("slab_m", "heuristic_m3", "objective_m3",
+                                                             "bound_m3", "gap_percent", "optimal",
+                                                             "candidates")}}
     report_ = check_layout(scene, layout.placed())
     return OptimizeResult(
         layout=layout,

@@ -95,7 +95,8 @@ class BeamSearch(Strategy):
         Pattern origin; by default several are ranked by a quick pass of the
         pattern's sites alone, and the search restarts from the best ones.
     restarts : int
-        Searches from the best-ranked origins, as time allows.
+        Searches from the best-ranked origins, for scenes of up to 100
+        blocks; fewer for larger scenes (``restarts * 100 / required``).
     share : float
         Fraction of the time left that the beam may use.
     judge : callable, optional
@@ -196,7 +197,10 @@ class BeamSearch(Strategy):
         best: tuple | None = None
         tried = 0
         runs = 0
-        for n, origin in enumerate(origins[: self.restarts]):
+        # Restarts pay off where the pattern's origin decides much (a short scene's ends);
+        # a long scene gets fewer, fixed by its size so a seed does the same work anywhere.
+        restarts = max(1, min(self.restarts, round(self.restarts * 100 / max(problem.required, 1))))
+        for n, origin in enumerate(origins[:restarts]):
             # A fixed number of restarts: the same seed does the same work on any machine,
             # and only a deadline that binds cuts it short.
             if n and time.monotonic() > end:
@@ -297,13 +301,19 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
 
 
 def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[str, float, float, float]]:
-    """Pattern sites in crane order: the lattice, then the lattice shifted by half a cell.
+    """Pattern sites in crane order: the lattice, then the lattice shifted by half a cell, and so on.
 
-    The second pass lands on the first where the first left no room on the
-    ground: the next layer, nested into the pockets of the one below.
+    Each pass lands on the one before where it left no room below: the next
+    layer, nested into the pockets of the one under it. A nested layer adds
+    about 0.8 H of height, so the zone's height sets the number of passes
+    (two for ``mini``'s 3.55 m zone and 1.66 m blocks, more for taller mounds).
     """
     z = problem.scene.tolerance
     xr, yr = (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
     lat = problem.lattice
+    passes = max(2, int(np.floor((z.z_top - z.z_bottom) / (0.8 * problem.scene.block.height))))
     shifted = (origin[0] + lat.w / 2, origin[1] + lat.p / 2)
-    return lat.sites(xr, yr, origin) + lat.sites(xr, yr, shifted)
+    sites = []
+    for n in range(passes):
+        sites += lat.sites(xr, yr, origin if n % 2 == 0 else shifted)
+    return sites

@@ -61,17 +61,22 @@ class CpSat(Strategy):
     jitter_yaw : float, radians
     time_limit : float, seconds
         CP-SAT's own limit (deterministic time, so a seed gives one answer).
+    slab : float, metres
+        Longest stretch of the crest solved at once. A longer scene is solved
+        on a slab at one end, with the blocks beside it held in place; the
+        gap then speaks for that slab.
     """
 
     name = "cpsat"
 
     def __init__(self, origins: int = 2, jitter: int = 2, jitter_xy: float = 0.12,
-                 jitter_yaw: float = np.radians(6.0), time_limit: float = 10.0):
+                 jitter_yaw: float = np.radians(6.0), time_limit: float = 10.0, slab: float = 24.0):
         self.origins = origins
         self.jitter = jitter
         self.jitter_xy = jitter_xy
         self.jitter_yaw = jitter_yaw
         self.time_limit = time_limit
+        self.slab = slab
         self._time_left = float("inf")
         self._stats: dict[str, float] = {}
 
@@ -80,15 +85,18 @@ class CpSat(Strategy):
 
     # --- candidates -------------------------------------------------------------------
 
-    def candidates(self, problem: Problem, origins: list[tuple[float, float]], rng: np.random.Generator
-                   ) -> list[tuple[Shape, Pose, float]]:
-        """Ground candidates ``(shape, pose, inside volume)``: pattern ground sites and jitter."""
+    def candidates(self, problem: Problem, origins: list[tuple[float, float]], rng: np.random.Generator,
+                   y_range: tuple[float, float] | None = None) -> list[tuple[Shape, Pose, float]]:
+        """Ground candidates ``(shape, pose, inside volume)``: pattern ground sites and jitter.
+
+        ``y_range`` limits the sites to a slab of the scene (default: all of it).
+        """
         scene = problem.scene
         shapes = ShapeCache(scene.block)
         lat = problem.lattice
         ground = DropWorld(scene.foundation)
         xr = (-scene.tolerance.bottom_half_width, scene.tolerance.bottom_half_width)
-        yr = (scene.tolerance.y_start, scene.tolerance.y_end)
+        yr = y_range or (scene.tolerance.y_start, scene.tolerance.y_end)
         out = []
         for origin in origins:
             for fam, yaw, x, y in lat.sites(xr, yr, origin):
@@ -140,16 +148,22 @@ class CpSat(Strategy):
 
     # --- model ------------------------------------------------------------------------------
 
-    def solve(self, values: list[float], conflicts: set[tuple[int, int]], limit: int, seed: int
-              ) -> tuple[list[int], float, float, str]:
-        """Maximum-volume selection; returns (chosen, objective m^3, bound m^3, status)."""
+    def solve(self, values: list[float], conflicts: set[tuple[int, int]], limit: int, seed: int,
+              fixed: frozenset[int] = frozenset()) -> tuple[list[int], float, float, str]:
+        """Maximum-volume selection; returns (chosen, objective m^3, bound m^3, status).
+
+        ``fixed`` candidates are chosen by force (blocks in place around a
+        slab); they do not count against ``limit``.
+        """
         from ortools.sat.python import cp_model
 
         model = cp_model.CpModel()
         x = [model.new_bool_var(f"c{i}") for i in range(len(values))]
+        for i in sorted(fixed):
+            model.add(x[i] == 1)
         for i, j in sorted(conflicts):
             model.add_at_most_one([x[i], x[j]])
-        model.add(sum(x) <= limit)
+        model.add(sum(x[i] for i in range(len(values)) if i not in fixed) <= limit)
         weights = [int(round(v * SCALE)) for v in values]
         model.maximize(sum(w * xi for w, xi in zip(weights, x, strict=True)))
         solver = cp_model.CpSolver()
@@ -185,20 +199,32 @@ class CpSat(Strategy):
             self._stats = {"skipped": 1.0}
             return start
         shapes = ShapeCache(problem.scene.block)
-        own = [k for k in start.order if start.supports[k] == (GROUND,)]
-        upper = len(start) - len(own)
+        zone = problem.scene.tolerance
+        # A long scene is solved on a slab at one end (its end and slopes, the hard part):
+        # the heuristic's ground blocks just outside the slab stay where they are.
+        whole = zone.y_end - zone.y_start <= self.slab
+        y0, y1 = zone.y_start, (zone.y_end if whole else zone.y_start + self.slab)
+        reach = 2.0 * problem.scene.block.bounding_radius
+        ground = [k for k in start.order if start.supports[k] == (GROUND,)]
+        upper = len(start) - len(ground)
+        own = [k for k in ground if y0 <= start.poses[k].position[1] <= y1]
+        border = [k for k in ground if not y0 <= start.poses[k].position[1] <= y1
+                  and y0 - reach <= start.poses[k].position[1] <= y1 + reach]
+        outside = len(ground) - len(own)
         heuristic = sum(start.porosity.contribution(k) for k in own)
         cands = [(start.shapes[k], start.poses[k], start.porosity.contribution(k)) for k in own]
+        cands += [(start.shapes[k], start.poses[k], 0.0) for k in border]
+        fixed = frozenset(range(len(own), len(own) + len(border)))
         origins = rank_origins(problem, shapes, rng, Build(problem.scene), max(2, self.origins + 2),
                                time.monotonic() + 0.1 * max(0.0, problem.time_left()))
-        cands += self.candidates(problem, origins[: self.origins], rng)
+        cands += self.candidates(problem, origins[: self.origins], rng, (y0, y1))
         conflicts, before = self.relations(problem, cands)
-        limit = max(0, problem.required - upper)
+        limit = max(0, problem.required - upper - outside)
         self._time_left = problem.time_left()
         chosen, objective, bound, status = self.solve([v for _, _, v in cands], conflicts, limit,
-                                                      int(rng.integers(2**31)))
+                                                      int(rng.integers(2**31)), fixed)
         placed = 0
-        if upper == 0 and objective > heuristic + 1e-9:
+        if whole and upper == 0 and objective > heuristic + 1e-9:
             # Lay the solved ground layer, blockers first, each lowered to confirm it.
             start = Build(problem.scene)
             for i in _topological(chosen, before):
@@ -209,6 +235,7 @@ class CpSat(Strategy):
                     placed += 1
         best = max(objective, heuristic)
         self._stats = {
+            "slab_m": float(y1 - y0),
             "candidates": float(len(cands)),
             "conflicts": float(len(conflicts)),
             "heuristic_m3": heuristic,

@@ -1,0 +1,111 @@
+"""Optimizer quality against the time budget, beside what a user would otherwise do.
+
+On ``mini`` (75 Shake Blocks, 56 % target), for time budgets of 10 to 120 s:
+
+* ``beam``: beam search alone (then the physics confirmation);
+* ``beam+anneal``: beam search, then simulated annealing;
+* ``beam+anneal+cpsat``: the default pipeline of ``shoha optimize``;
+* ``random drop``: the baseline of dropping random blocks and settling them,
+  as one would in Blender or Bullet (``settle.pour``: 75 blocks in batches,
+  each batch settled in MuJoCo on the pile below). It has no budget to give;
+  it is plotted at the time it took.
+
+Each result is checked the same way (``geometry.checks``, and a settle):
+porosity error ``|porosity - 56|`` in points, and violations = blocks short
+of 75 + colliding pairs + blocks out of tolerance + unstable blocks.
+
+Writes ``results/optimizer_quality.{csv,json,png}``. Seeds are fixed.
+"""
+
+from __future__ import annotations
+
+import time
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from common import Run, mini  # noqa: E402
+
+from geometry.checks import check_layout  # noqa: E402
+from optimizer.anneal import Annealing  # noqa: E402
+from optimizer.api import optimize  # noqa: E402
+from optimizer.beam import BeamSearch  # noqa: E402
+from optimizer.cpsat import CpSat  # noqa: E402
+from optimizer.physics import raised_check, stands  # noqa: E402
+from settle import settle  # noqa: E402
+from settle.pour import pour  # noqa: E402
+
+BUDGETS = (10.0, 20.0, 40.0, 80.0, 120.0)
+SEED = 1
+
+CONFIGS = {
+    "beam": lambda: [BeamSearch(accept=raised_check, judge=stands)],
+    "beam+anneal": lambda: [BeamSearch(accept=raised_check, judge=stands), Annealing(accept=raised_check)],
+    "beam+anneal+cpsat": lambda: [BeamSearch(accept=raised_check, judge=stands),
+                                  Annealing(accept=raised_check), CpSat()],
+}
+
+
+def judge(scene, placed, seconds: float, name: str, budget: float | None) -> dict:
+    report = check_layout(scene, placed)
+    verdict = settle(scene, placed, seed=0)
+    unstable = len(verdict.unstable_ids)
+    violations = (max(0, scene.required_blocks - len(placed)) + len(report.collisions)
+                  + len(report.out_of_tolerance) + unstable)
+    return {
+        "method": name,
+        "budget_s": budget,
+        "seconds": round(seconds, 2),
+        "blocks": len(placed),
+        "porosity_percent": round(report.porosity_percent, 3),
+        "porosity_error": round(abs(report.porosity_percent - scene.target_porosity), 3),
+        "collisions": len(report.collisions),
+        "out_of_tolerance": len(report.out_of_tolerance),
+        "unstable": unstable,
+        "violations": violations,
+        "valid": violations == 0,
+    }
+
+
+def main() -> None:
+    scene = mini()
+    run = Run("optimizer_quality", {"scene": "mini", "seed": SEED, "budgets_s": BUDGETS})
+    rows = []
+    for name, make in CONFIGS.items():
+        for budget in BUDGETS:
+            t0 = time.perf_counter()
+            r = optimize(scene, seed=SEED, time_limit=budget, strategies=make())
+            row = judge(scene, r.layout.placed(), time.perf_counter() - t0, name, budget)
+            rows.append(row)
+            print(row, flush=True)
+    t0 = time.perf_counter()
+    poured = pour(scene, scene.required_blocks, seed=SEED)
+    row = judge(scene, poured, time.perf_counter() - t0, "random drop", None)
+    rows.append(row)
+    print(row, flush=True)
+    run.csv("optimizer_quality", rows)
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for name in CONFIGS:
+        pts = [r for r in rows if r["method"] == name]
+        a.plot([r["budget_s"] for r in pts], [r["porosity_error"] for r in pts], "o-", label=name)
+        b.plot([r["budget_s"] for r in pts], [r["violations"] for r in pts], "o-", label=name)
+    base = rows[-1]
+    for ax, key in ((a, "porosity_error"), (b, "violations")):
+        ax.plot([base["seconds"]], [base[key]], "k^", ms=9, label="random drop + settle (its own time)")
+        ax.set_xlabel("time budget (s)")
+        ax.grid(alpha=0.3)
+    a.set_ylabel("porosity error |porosity - 56| (percentage points)")
+    a.set_yscale("symlog", linthresh=1.0)
+    b.set_ylabel("violations (missing + collisions + out of tolerance + unstable)")
+    b.set_yscale("symlog", linthresh=1.0)
+    a.legend(fontsize=8)
+    fig.suptitle("shoha optimize on mini: quality against time budget (seed 1)")
+    fig.tight_layout()
+    run.figure("optimizer_quality", fig)
+    run.done()
+
+
+if __name__ == "__main__":
+    main()
