@@ -33,15 +33,16 @@ class Tolerances:
     drop_resolution : float, metres
         How close a lowered block comes to what it rests on.
     rest_speed : float, m/s
-        A block is at rest in a physics settle while no point of it moves
-        faster than this (``|v| + |omega| R``, R its bounding radius).
+        A block is at rest in a physics settle if over the last
+        ``rest_time`` no point of it strayed more than ``rest_speed *
+        rest_time / 2`` (0.1 mm) from where it was (settle.base.RestMonitor).
     rest_time : float, seconds
-        A settle stops early once every block has been at rest this long. A
-        block that starts from rest with a constant acceleration ``a`` stays
-        under ``rest_speed`` for this long only if ``a < rest_speed /
-        rest_time`` (0.005 m/s^2), so stopping can hide at most
-        ``a T^2 / 2`` = 1 cm of motion in a 2 s settle, a fifth of the 0.05 H
-        stability threshold of a 1 m block.
+        A settle stops early once every block is at rest over this window.
+        A block that starts from rest with a constant acceleration ``a``
+        moves ``a rest_time^2 / 2`` in it, so it counts as at rest only if
+        ``a < rest_speed / rest_time`` (0.005 m/s^2); stopping can then hide
+        at most ``a T^2 / 2`` = 1 cm of motion in a 2 s settle, a fifth of
+        the 0.05 H stability threshold of a 1 m block.
     plane_angle : float, radians
         In a section scene a block may turn only about y; its local y axis may
         be off world y by this much (float noise of a file's quaternion).

@@ -318,7 +318,8 @@ class MujocoBackend(SettleBackend):
                 progress(t, seconds)
                 next_report = t + 0.1
             v = data.qvel.reshape(-1, 6)
-            if monitor.update(t, v[:, :3], v[:, 3:]) and early_stop:
+            q = data.qpos.reshape(-1, 7)
+            if monitor.update(t, q[:, :3], q[:, 3:], v[:, :3], v[:, 3:]) and early_stop:
                 at_rest = True
                 break
         qpos = data.qpos.reshape(-1, 7)

@@ -185,7 +185,8 @@ class PymunkBackend(SettleBackend):
                 space.step(self.timestep)
             steps += n
             t = steps * self.timestep
-            state = np.array([(*b.velocity, b.angular_velocity, *b.position) for b in free]).reshape(-1, 5)
+            state = np.array([(*b.velocity, b.angular_velocity, *b.position, b.angle)
+                              for b in free]).reshape(-1, 6)
             if not np.isfinite(state).all():
                 raise RuntimeError(f"pymunk diverged at step {steps} (non-finite state)")
             if progress is not None and (t >= next_report or steps == total):
@@ -194,7 +195,11 @@ class PymunkBackend(SettleBackend):
             zeros = np.zeros(len(free))
             v = np.column_stack([state[:, 0], zeros, state[:, 1]])
             w = np.column_stack([zeros, -state[:, 2], zeros])
-            if monitor.update(t, v, w) and early_stop:
+            # 3D poses of the 2D state: (x, z) and a turn by -angle about +y.
+            p = np.column_stack([state[:, 3], zeros, state[:, 4]])
+            half = -state[:, 5] / 2
+            q = np.column_stack([np.cos(half), zeros, np.sin(half), zeros])
+            if monitor.update(t, p, q, v, w) and early_stop:
                 at_rest = True
                 break
         poses = {
