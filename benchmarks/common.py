@@ -182,8 +182,8 @@ class Run:
     def figure(self, stem: str, fig: Any) -> Path:
         """Save a matplotlib figure as ``results/STEM.png``, its caption naming the machine."""
         m = self.start
-        fig.text(0.995, 0.003, f"{m['cpu_model']}, {m['cores']} cores, load {m['load_average'][0]}, "
-                 f"shoha {m['commit']}, {m['date'][:10]}", ha="right", va="bottom", fontsize=7,
+        fig.text(0.995, 0.995, f"{m['cpu_model']}, {m['cores']} cores, load {m['load_average'][0]}, "
+                 f"shoha {m['commit']}, {m['date'][:10]}", ha="right", va="top", fontsize=7,
                  color="0.4")
         path = RESULTS / f"{stem}.png"
         fig.savefig(path, dpi=130)
@@ -220,12 +220,17 @@ def machine_markdown(meta: dict[str, Any]) -> str:
 
 @dataclass(frozen=True)
 class Timing:
-    """Seconds of repeated calls: the median is the figure quoted, the rest shows spread."""
+    """Seconds of repeated calls: the median is the figure quoted, the rest shows spread.
+
+    ``cpu_median`` is the median CPU time of this process over the same calls:
+    on a shared machine it moves less with the load than wall time does.
+    """
 
     median: float
     best: float
     worst: float
     repeats: int
+    cpu_median: float = float("nan")
 
     @property
     def ms(self) -> float:
@@ -248,30 +253,35 @@ def timed(fn: Callable[[], Any], repeats: int = 7, warmup: int = 1) -> tuple[Tim
     value = None
     for _ in range(warmup):
         value = fn()
-    times = []
+    times, cpu = [], []
     for _ in range(max(1, repeats)):
         gc.collect()
+        c = time.process_time()
         t = time.perf_counter()
         value = fn()
         times.append(time.perf_counter() - t)
-    return Timing(float(np.median(times)), min(times), max(times), len(times)), value
+        cpu.append(time.process_time() - c)
+    return Timing(float(np.median(times)), min(times), max(times), len(times), float(np.median(cpu))), value
 
 
 def move_times(tracker: Any, placed: Placed, moves: Placed, rounds: int = 3) -> np.ndarray:
     """Seconds of each ``tracker.move``: every block to its pose in ``moves``, then back.
 
     ``tracker`` holds ``placed`` (a ``PorosityTracker``). One untimed round
-    first, then ``rounds`` timed ones.
+    first, then ``rounds`` timed ones. Returns (moves, 2): wall and CPU
+    seconds of each move (CPU time has a coarse clock: use its median over
+    many moves only).
     """
     times = []
     for r in range(rounds + 1):
         for (key, _, pose), (_, _, moved) in zip(placed, moves, strict=True):
             for target in (moved, pose):
+                c = time.process_time()
                 t = time.perf_counter()
                 tracker.move(key, target)
                 if r:
-                    times.append(time.perf_counter() - t)
-    return np.array(times)
+                    times.append((time.perf_counter() - t, time.process_time() - c))
+    return np.array(times).reshape(-1, 2)
 
 
 def repeats_for(seconds: float, budget: float = 3.0, lo: int = 1, hi: int = 21) -> int:

@@ -16,7 +16,10 @@ Measures, with ``geometry.porosity`` (the one porosity module):
   and 5 degrees (seed 0) and back. Target: under 2 ms.
 
 Figures are medians of repeated calls after a warm-up call (imports, the
-block's mesh and convex pieces, FCL's geometry are not the measured work).
+block's mesh and convex pieces, FCL's geometry are not the measured work),
+in wall time; the CPU time of the same calls is saved beside it, since the
+machine is shared and CPU time moves less with the load. The targets are
+judged on wall time.
 
 Run::
 
@@ -51,11 +54,12 @@ def main() -> None:
 
     def row(case, method, blocks, divisions, timing, percent, target_ms, note=""):
         rows.append({"case": case, "method": method, "blocks": blocks, "divisions": divisions,
-                     "median_ms": timing.ms, "best_ms": 1e3 * timing.best, "worst_ms": 1e3 * timing.worst,
+                     "median_ms": timing.ms, "cpu_median_ms": 1e3 * timing.cpu_median,
+                     "best_ms": 1e3 * timing.best, "worst_ms": 1e3 * timing.worst,
                      "repeats": timing.repeats, "porosity_percent": percent, "target_ms": target_ms,
                      "meets_target": "" if target_ms is None else timing.ms < target_ms, "note": note})
         print(f"{case:<34} {method:<10} {blocks:>4} blocks {divisions or '':>4}  "
-              f"{timing.ms:10.3f} ms  ({percent:.4f} %)")
+              f"{timing.ms:10.3f} ms (CPU {1e3 * timing.cpu_median:8.3f} ms)  ({percent:.4f} %)")
 
     t, r = timed(lambda: porosity(scene, ref, "exact"), repeats=21, warmup=2)
     row("exact, overlap search (CLI)", "exact", len(ref), None, t, r.percent, TARGET_EXACT_MS)
@@ -76,7 +80,9 @@ def main() -> None:
         for key, block, pose in ref:
             tracker.add(key, block, pose)
         times = move_times(tracker, ref, moves, rounds=3)
-        timing_ = Timing(float(np.median(times)), float(times.min()), float(times.max()), len(times))
+        wall, cpu = times[:, 0], times[:, 1]
+        timing_ = Timing(float(np.median(wall)), float(wall.min()), float(wall.max()), len(wall),
+                         float(np.mean(cpu)))  # the mean: CPU clock ticks are coarser than one move
         row("incremental move of one block", method, len(ref), d, timing_, tracker.percent, TARGET_MOVE_MS,
             "PorosityTracker.move, median over every block moved and back, 3 rounds")
 

@@ -242,7 +242,7 @@ def tracker_moves(scene: Scene) -> dict[str, float]:
         for key, block, pose in ref:
             tracker.add(key, block, pose)
         key = method if d is None else f"{method} {d}"
-        out[key] = 1e3 * float(np.median(move_times(tracker, ref, moves)))
+        out[key] = 1e3 * float(np.median(move_times(tracker, ref, moves)[:, 0]))
     return out
 
 
