@@ -176,11 +176,13 @@ class RestMonitor:
         self.peak = max(self.peak, float(fastest.max(initial=0.0)))
         samples = self._samples
         samples.append((t, np.array(positions, dtype=float), np.array(quaternions, dtype=float)))
-        # Keep the newest sample at or before t - window as the reference.
-        while len(samples) > 1 and samples[1][0] <= t - self.window:
+        # Keep the newest sample at or before t - window as the reference
+        # (with a relative 1e-9 of slack: times are sums of float steps).
+        window = self.window * (1 - 1e-9)
+        while len(samples) > 1 and t - samples[1][0] >= window:
             samples.popleft()
         t0, p0, q0 = samples[0]
-        if t - t0 < self.window:
+        if t - t0 < window:
             return False
         for _, p, q in list(samples)[1:]:
             # Small rotation angle from the quaternion chord (q and -q alike).

@@ -252,3 +252,35 @@ class TestPymunkContract(SettleBackendContract):
     @pytest.fixture
     def make_backend(self):
         return PymunkBackend
+
+
+# --- the rest rule, backend-free ------------------------------------------------------------
+
+
+def _rests_after(motion, seconds: float = 1.0, dt: float = 0.04) -> float | None:
+    """First time a RestMonitor, sampling every ``dt`` from t = 0, calls a block
+    moving along x by ``motion(t)`` at rest."""
+    from settle.base import RestMonitor
+
+    monitor = RestMonitor(np.array([1.0]))
+    q = np.array([[1.0, 0.0, 0.0, 0.0]])
+    for k in range(round(seconds / dt) + 1):
+        t = k * dt
+        if monitor.update(t, np.array([[motion(t), 0.0, 0.0]]), q, np.zeros((1, 3)), np.zeros((1, 3))):
+            return t
+    return None
+
+
+def test_rest_rule_ignores_vibration_and_catches_slow_acceleration():
+    from geometry.constants import tol
+
+    # Vibrating in place by 5 micrometres at 30 Hz (1 mm/s peaks): at rest
+    # as soon as a full window has passed.
+    vibrating = _rests_after(lambda t: 5e-6 * math.sin(2 * math.pi * 30 * t))
+    assert vibrating == pytest.approx(tol.rest_time)
+    # Constant acceleration from rest: at rest iff a < rest_speed / rest_time.
+    limit = tol.rest_speed / tol.rest_time
+    assert _rests_after(lambda t: 0.9 * limit * t**2 / 2, seconds=0.2) is not None
+    assert _rests_after(lambda t: 1.1 * limit * t**2 / 2, seconds=0.2) is None
+    # Creeping steadily at the rest speed: never at rest.
+    assert _rests_after(lambda t: tol.rest_speed * t) is None
