@@ -190,9 +190,8 @@ def convert(save: str, source: str, out: str, block_type: str, scene_name: str, 
             as_json: bool) -> None:
     """Convert a simulator save to a shoha-layout/1 file."""
     from geometry.layout import write_layout
-    from geometry.unity import read_unity_save
-
     from geometry.scene import load_scene
+    from geometry.unity import read_unity_save
 
     path = _check_out(out)
     # The layout names its scene relative to itself (CONTRACT.md), not to the working folder.

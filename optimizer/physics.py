@@ -69,15 +69,18 @@ def carried_closure(build: Build, keys: set[int]) -> set[int]:
 
 
 def confirm(problem: Problem, build: Build, rng: np.random.Generator,
-            origin: tuple[float, float] | None = None) -> tuple[Build, dict[str, Any]]:
+            origin: tuple[float, float] | None = None, end: float | None = None
+            ) -> tuple[Build, dict[str, Any]]:
     """Settle a build; repair and settle again while blocks fail.
 
     Each round takes the failed blocks out, with every block resting on
-    them. With time left (three times the last settle, at least), the beam
-    search places blocks again under the local check; without, the layout
-    stays short of them. The rounds end when the settle verdict is stable,
-    so what is returned always stands, even if it is smaller (a settled
-    empty layout is trivially stable).
+    them. If a repair and one more settle fit before ``end`` (a
+    ``time.monotonic()`` value; a repair gets at most half the time left
+    after reserving one settle), the beam search places blocks again under
+    the local check; otherwise the layout stays short of them. The rounds
+    end when the settle verdict is stable, so what is returned always
+    stands, even if it is smaller (a settled empty layout is trivially
+    stable).
 
     Returns the build and a summary: ``stable``, ``max_displacement_m``,
     ``max_rotation_deg``, ``unstable`` (ids in crane order), ``rounds``,
@@ -100,7 +103,9 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
         for k in sorted(failed, key=build.order.index, reverse=True):
             smaller.remove(k)
         repaired += len(failed)
-        if rounds <= ROUNDS and problem.time_left() > 3 * cost + 1.0:
+        left = (end if end is not None else problem.deadline) - time.monotonic() - cost
+        if rounds <= ROUNDS and left > 2 * cost + 1.0:
+            problem.deadline = time.monotonic() + left  # the repair must leave room for a settle
             beam = BeamSearch(width=2, accept=local_check, origin=origin, restarts=1, share=0.5)
             build = beam.run(problem, smaller, rng)
         else:
