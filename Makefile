@@ -26,6 +26,9 @@ demo: $(VENV)/.installed
 	$(BIN)/shoha optimize mini --out $(OUT)/mini.json --seed 1
 	$(BIN)/shoha check $(OUT)/mini.json
 	$(BIN)/shoha settle $(OUT)/mini.json
+	$(BIN)/shoha render $(OUT)/mini.json --out $(OUT)/mini.png
+	$(BIN)/shoha score $(OUT)/mini.json --reference $(OUT)/mini.json --html $(OUT)/mini-report.html
+	@echo "open $(OUT)/mini-report.html in a browser; $(OUT)/mini.png for print"
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q
