@@ -23,7 +23,10 @@ Construction used here (see ``docs/tolerance.md`` for the figure):
    ``end_extension`` (``H/3``), so that a block at an end is judged like a
    block at the crest edge.
 5. Where the foundation is a rough underlayer, the zone reaches down to its
-   lowest point, so that blocks resting in its hollows are not "out".
+   lowest point, so that blocks resting in its hollows are not "out". It
+   reaches ``tol.contact_depth`` (5 mm) further down in any case: a block
+   that a physics settle or the simulator presses a few millimetres into the
+   foundation is resting on it, as it would be resting on another block.
 
 The design prism lies inside this zone for any non-negative allowances.
 """
@@ -145,7 +148,12 @@ def design_prism(crest_width: float, height: float, slope: float, length: float)
 def tolerance_prism(
     design: TrapezoidalPrism, allowance: Allowance, z_bottom: float = 0.0
 ) -> TrapezoidalPrism:
-    """The tolerance prism around ``design``: see the module docstring."""
+    """The tolerance prism around ``design``: see the module docstring.
+
+    ``z_bottom`` is the foundation's lowest point; the zone goes
+    ``tol.contact_depth`` below it.
+    """
+    z_bottom = z_bottom - tol.contact_depth
     a = allowance
     h = design.height
     run = design.bottom_half_width - design.top_half_width

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from geometry.checks import check_layout
+from geometry.errors import InputError
 from geometry.layout import Layout
 from geometry.scene import Scene
 
@@ -152,6 +153,9 @@ def optimize(
     report : callable, optional
         ``report(phase, build, message)`` for a progress display.
     """
+    if scene.kind != "3d":
+        raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
+                         "shoha optimize places blocks in 3D scenes")
     start = time.monotonic()
     rng = np.random.default_rng(seed)
     # Keep a share of the budget for the physics confirmation and the final checks.

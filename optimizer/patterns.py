@@ -27,6 +27,7 @@ import hashlib
 import json
 import os
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.optimize import differential_evolution
@@ -165,15 +166,31 @@ TUNED: dict[str, dict[str, float | str]] = {
 
 
 def lattice_for(block: Block, name: str) -> InterlockLattice:
-    """The interlocking lattice of a block type, tuned once and cached on disk."""
+    """The placement lattice of a block type.
+
+    The tuned lattice for built-in blocks; a lattice tuned for this exact
+    block earlier and cached on disk (:func:`tune_and_cache`); otherwise the
+    staggered half-brick bond, which needs no tuning. Tuning takes minutes,
+    so ``shoha optimize`` never tunes by itself: its time limit holds.
+    """
     base = name.split(":")[0] if name.startswith("tetrapod") else name
     if base in TUNED:
         return InterlockLattice(**TUNED[base]).scaled(block.height)  # type: ignore[arg-type]
-    digest = hashlib.sha256(np.ascontiguousarray(block.vertices).tobytes()).hexdigest()[:16]
-    path = cache_dir() / "lattices" / f"{digest}.json"
+    path = _cache_path(block)
     if path.is_file():
         return InterlockLattice(**json.loads(path.read_text()))
-    lattice = tune_lattice(block)
+    return staggered(block)
+
+
+def _cache_path(block: Block) -> Path:
+    digest = hashlib.sha256(np.ascontiguousarray(block.vertices).tobytes()).hexdigest()[:16]
+    return cache_dir() / "lattices" / f"{digest}.json"
+
+
+def tune_and_cache(block: Block, seed: int = 0) -> InterlockLattice:
+    """Tune a block's interlocking lattice and cache it, for :func:`lattice_for` to find."""
+    lattice = tune_lattice(block, seed=seed)
+    path = _cache_path(block)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.tmp")
     tmp.write_text(json.dumps(asdict(lattice)))
@@ -197,7 +214,11 @@ def staggered(block: Block, family: str = "crown") -> InterlockLattice:
 
 
 def main(argv: list[str] | None = None) -> None:  # pragma: no cover - a maintenance tool
-    """Tune a lattice and print it per unit height, for :data:`TUNED`."""
+    """Tune a lattice, cache it for this block, and print it per unit height (for :data:`TUNED`).
+
+    ``python -m optimizer.patterns BLOCK [SEED [MAXITER]]``, e.g. for a
+    ``mesh:`` block before optimizing with it.
+    """
     import sys
 
     from geometry.blocks import get_block
@@ -207,6 +228,9 @@ def main(argv: list[str] | None = None) -> None:  # pragma: no cover - a mainten
     block = get_block(name)
     lat = tune_lattice(block, seed=int(args[1]) if len(args) > 1 else 0,
                        maxiter=int(args[2]) if len(args) > 2 else 300)
+    path = _cache_path(block)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(asdict(lat)))
     scaled = asdict(lat.scaled(1.0 / block.height))
     print(json.dumps({name: scaled}, indent=1))  # noqa: T201
     print(f"area per block {lat.area_per_block:.4f} m^2 at H = {block.height:.4f} m")  # noqa: T201
