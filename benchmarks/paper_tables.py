@@ -15,7 +15,7 @@ are not the paper's. What must match is the "correct value" column (to 0.01)
 and the trend: the paper's method below the correct value, its gap shrinking
 as the divisions grow.
 
-Times are medians of 3 calls after a warm-up call, each call building its
+Times are medians of 5 calls after a warm-up call, each call building its
 grid as ``shoha porosity`` does.
 
 Run::
@@ -53,13 +53,13 @@ def main() -> int:
     scene = mini()
     run = Run("paper_tables", {"blocks": PAPER_BLOCKS, "divisions": PAPER_DIVISIONS, "seed": SEED,
                                "layouts": "random_inside(mini.block, mini.design, n, seed=0)",
-                               "repeats": 3})
+                               "repeats": 5})
     rows = []
     ours: dict[tuple[int, str, int | None], tuple[float, float]] = {}
     for n in PAPER_BLOCKS:
         placed = paper_layout(n)
         assert not collisions(placed, threshold=-1.0), "the paper's blocks must not touch"
-        t, r = timed(lambda p=placed: porosity(scene, p, "exact"), repeats=3)
+        t, r = timed(lambda p=placed: porosity(scene, p, "exact"), repeats=5)
         ours[n, "exact", None] = (r.percent, t.median)
         rows.append({"blocks": n, "method": "exact", "divisions": "", "porosity_percent": r.percent,
                      "seconds": t.median, "paper_porosity_percent": PAPER_CORRECT[n], "paper_seconds": "",
@@ -68,7 +68,7 @@ def main() -> int:
               f"paper correct value {PAPER_CORRECT[n]:.2f}")
         for method in METHODS:
             for d in PAPER_DIVISIONS:
-                t, r = timed(lambda p=placed, m=method, d=d: porosity(scene, p, m, divisions=d), repeats=3)
+                t, r = timed(lambda p=placed, m=method, d=d: porosity(scene, p, m, divisions=d), repeats=5)
                 ours[n, method, d] = (r.percent, t.median)
                 paper = PAPER_POROSITY[n][d] if method == "voxel-any" else None
                 rows.append({"blocks": n, "method": method, "divisions": d, "porosity_percent": r.percent,
