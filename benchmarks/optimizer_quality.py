@@ -1,6 +1,6 @@
 """Optimizer quality against the time budget, beside what a user would otherwise do.
 
-On ``mini`` (75 Shake Blocks, 56 % target), for time budgets of 10 to 80 s:
+On ``mini`` (75 Shake Blocks, 56 % target), for time budgets of 5 to 40 s:
 
 * ``beam``: beam search alone (then the physics confirmation);
 * ``beam+anneal``: beam search, then simulated annealing;
@@ -34,7 +34,7 @@ from optimizer.physics import raised_check, stands  # noqa: E402
 from settle import settle  # noqa: E402
 from settle.pour import pour  # noqa: E402
 
-BUDGETS = (10.0, 20.0, 40.0, 80.0)
+BUDGETS = (5.0, 10.0, 20.0, 40.0)
 SEED = 1
 
 CONFIGS = {

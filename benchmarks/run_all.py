@@ -25,7 +25,7 @@ import summary
 from common import BENCH, ROOT, Run
 
 ORDER = ("porosity_speed", "paper_tables", "collision_speed", "speed_vs_accuracy", "scaling",
-         "settle_speed")
+         "settle_speed", "score_speed", "optimizer_quality", "optimizer_scaling", "batch_cluster")
 NOT_BENCHMARKS = {"common", "run_all", "summary"}
 
 
