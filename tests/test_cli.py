@@ -86,7 +86,8 @@ def test_check_reports_faults(tmp_path, colliding_pair, protruding_block):
     d = _json(shoha("check", str(path), "--json"))
     assert [(c["a"], c["b"]) for c in d["collisions"]] == [(0, 1)]
     assert abs(d["collisions"][0]["depth_m"] - 0.2) < 1e-6
-    assert [o["id"] for o in d["out_of_tolerance"]] == [7] and d["out_of_tolerance"][0]["outside_volume_m3"] > 0
+    assert [o["id"] for o in d["out_of_tolerance"]] == [7]
+    assert d["out_of_tolerance"][0]["outside_volume_m3"] > 0
 
 
 def test_convert_unity_save(tmp_path):
@@ -94,7 +95,8 @@ def test_convert_unity_save(tmp_path):
     save.write_text(json.dumps({"blocks": [{"position": {"x": 1, "y": 2, "z": 3},
                                             "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]}))
     out = tmp_path / "l.json"
-    d = _json(shoha("convert", str(save), "--from", "unity", "--out", str(out), "--origin", "1,0,0", "--json"))
+    d = _json(shoha("convert", str(save), "--from", "unity", "--out", str(out), "--origin", "1,0,0",
+                    "--json"))
     assert d == {"blocks": 1, "path": str(out)}
     block = json.loads(out.read_text())["blocks"][0]
     assert block["position"] == [2.0, 3.0, 2.0] and block["type"] == "shake-4t"
@@ -108,7 +110,8 @@ def test_convert_names_a_scene_file_relative_to_the_layout(tmp_path):
     save = tmp_path / "save.json"
     save.write_text(json.dumps({"blocks": []}))
     out = tmp_path / "out" / "l.json"
-    r = shoha("convert", str(save), "--from", "unity", "--out", str(out), "--scene", "scenes/s.toml", cwd=tmp_path)
+    r = shoha("convert", str(save), "--from", "unity", "--out", str(out), "--scene", "scenes/s.toml",
+              cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert json.loads(out.read_text())["scene"] == "../scenes/s.toml"
     assert shoha("check", str(out), cwd=tmp_path / "out").returncode == 0
@@ -197,7 +200,8 @@ def test_wheel_holds_exactly_the_three_packages(tmp_path):
     r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation",
                         "-w", str(tmp_path), str(ROOT)], capture_output=True, text=True, timeout=300)
     if r.returncode != 0 and "setuptools" in r.stderr:
-        r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", str(tmp_path), str(ROOT)],
+        r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-w", str(tmp_path),
+                            str(ROOT)],
                            capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     (wheel,) = tmp_path.glob("shoha-*.whl")

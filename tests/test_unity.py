@@ -58,7 +58,8 @@ def test_matches_contract_matrix_formula_for_random_rotations(tmp_path):
 
 
 @pytest.mark.parametrize("save, message", [
-    ({"blocks": [{"position": {"x": 0, "y": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]}, "position.z"),
+    ({"blocks": [{"position": {"x": 0, "y": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]},
+     "position.z"),
     ({"blocks": [{"position": {"x": 0, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 0}}]},
      "norm 0 is not 1"),
     ({"blocks": [{"type": "tetrapodd", "position": {"x": 0, "y": 0, "z": 0},
