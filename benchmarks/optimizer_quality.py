@@ -64,6 +64,53 @@ def judge(scene, placed, seconds: float, name: str, budget: float | None) -> dic
     }
 
 
+def chart(rows: list[dict]) -> plt.Figure:
+    """Porosity error and violations against the budget, the random drop at its own time."""
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.6))
+    for name in CONFIGS:
+        pts = [r for r in rows if r["method"] == name]
+        a.plot([r["budget_s"] for r in pts], [r["porosity_error"] for r in pts], "o-", label=name)
+        b.plot([r["budget_s"] for r in pts], [r["violations"] for r in pts], "o-", label=name)
+    base = [r for r in rows if r["method"] == "random drop"]
+    for ax, key in ((a, "porosity_error"), (b, "violations")):
+        if base:
+            ax.plot([base[0]["seconds"]], [base[0][key]], "k^", ms=9,
+                    label="random drop + settle (at the time it took)")
+        ax.set_xlabel("time budget (s)")
+        ax.grid(alpha=0.3)
+        ax.set_yscale("symlog", linthresh=1.0)
+        ax.legend(fontsize=8)
+    a.set_ylabel("porosity error |porosity - 56 %| (points)")
+    a.set_title("porosity error", fontsize=10)
+    b.set_ylabel("violations (count)")
+    b.set_title("violations: blocks missing + colliding pairs\n+ blocks out of tolerance + unstable blocks",
+                fontsize=9)
+    fig.suptitle("shoha optimize on mini: quality against time budget (seed 1)", y=0.98)
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
+    return fig
+
+
+def replot() -> None:
+    """Redraw the chart from ``results/optimizer_quality.csv`` (``--replot``), measuring nothing."""
+    import csv
+
+    from common import RESULTS
+
+    with (RESULTS / "optimizer_quality.csv").open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        for k in ("budget_s", "seconds", "porosity_error", "violations"):
+            r[k] = float(r[k]) if r[k] != "" else None
+    import json
+
+    m = json.loads((RESULTS / "optimizer_quality.json").read_text())["machine"]
+    fig = chart(rows)
+    # The caption Run.figure gives a chart, from the run that measured the rows.
+    fig.text(0.995, 0.995, f"{m['cpu_model']}, {m['cores']} cores, load {m['load_average'][0]}, "
+             f"shoha {m['commit']}, {m['date'][:10]}", ha="right", va="top", fontsize=7, color="0.4")
+    fig.savefig(RESULTS / "optimizer_quality.png", dpi=130)
+
+
 def main() -> None:
     scene = mini()
     run = Run("optimizer_quality", {"scene": "mini", "seed": SEED, "budgets_s": BUDGETS})
@@ -81,27 +128,11 @@ def main() -> None:
     rows.append(row)
     print(row, flush=True)
     run.csv("optimizer_quality", rows)
-
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for name in CONFIGS:
-        pts = [r for r in rows if r["method"] == name]
-        a.plot([r["budget_s"] for r in pts], [r["porosity_error"] for r in pts], "o-", label=name)
-        b.plot([r["budget_s"] for r in pts], [r["violations"] for r in pts], "o-", label=name)
-    base = rows[-1]
-    for ax, key in ((a, "porosity_error"), (b, "violations")):
-        ax.plot([base["seconds"]], [base[key]], "k^", ms=9, label="random drop + settle (its own time)")
-        ax.set_xlabel("time budget (s)")
-        ax.grid(alpha=0.3)
-    a.set_ylabel("porosity error |porosity - 56| (percentage points)")
-    a.set_yscale("symlog", linthresh=1.0)
-    b.set_ylabel("violations (missing + collisions + out of tolerance + unstable)")
-    b.set_yscale("symlog", linthresh=1.0)
-    a.legend(fontsize=8)
-    fig.suptitle("shoha optimize on mini: quality against time budget (seed 1)")
-    fig.tight_layout()
-    run.figure("optimizer_quality", fig)
+    run.figure("optimizer_quality", chart(rows))
     run.done()
 
 
 if __name__ == "__main__":
-    main()
+    import sys
+
+    replot() if "--replot" in sys.argv[1:] else main()
