@@ -43,7 +43,7 @@ _GEOMETRY: weakref.WeakKeyDictionary[Block, list[fcl.Convex]] = weakref.WeakKeyD
 _STACKED: weakref.WeakKeyDictionary[Block, tuple[np.ndarray, np.ndarray]] = weakref.WeakKeyDictionary()
 
 
-def _fcl_pieces(block: Block) -> list[fcl.Convex]:
+def fcl_pieces(block: Block) -> list[fcl.Convex]:
     """FCL shapes of a block's pieces, built once per block object."""
     shapes = _GEOMETRY.get(block)
     if shapes is None:
@@ -53,6 +53,12 @@ def _fcl_pieces(block: Block) -> list[fcl.Convex]:
             shapes.append(fcl.Convex(np.ascontiguousarray(piece.vertices), len(piece.faces), faces))
         _GEOMETRY[block] = shapes
     return shapes
+
+
+def fcl_objects(block: Block, pose: Pose) -> list[fcl.CollisionObject]:
+    """FCL objects of a posed block's pieces, for one-off queries such as distances."""
+    tf = fcl.Transform(pose.rotation, pose.position)
+    return [fcl.CollisionObject(g, tf) for g in fcl_pieces(block)]
 
 
 def _stacked_vertices(block: Block) -> tuple[np.ndarray, np.ndarray]:
@@ -93,7 +99,7 @@ class _Entry:
         if obj is None:
             if self._transform is None:
                 self._transform = fcl.Transform(self.pose.rotation, self.pose.position)
-            obj = fcl.CollisionObject(_fcl_pieces(self.block)[i], self._transform)
+            obj = fcl.CollisionObject(fcl_pieces(self.block)[i], self._transform)
             self._objects[i] = obj
         return obj
 

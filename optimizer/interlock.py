@@ -22,7 +22,6 @@ can pivot about it), or when it has fewer than ``min_neighbours`` neighbours
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -31,7 +30,7 @@ import fcl
 import numpy as np
 
 from geometry.blocks import Block
-from geometry.collision import world_of
+from geometry.collision import fcl_objects, world_of
 from geometry.constants import tol
 from geometry.errors import InputError
 from geometry.pose import Pose
@@ -139,26 +138,6 @@ class InterlockReport:
         }
 
 
-_FCL: weakref.WeakKeyDictionary[Block, list[fcl.Convex]] = weakref.WeakKeyDictionary()
-
-
-def _pieces(block: Block) -> list[fcl.Convex]:
-    """FCL shapes of a block's convex pieces (block frame), built once per block."""
-    shapes = _FCL.get(block)
-    if shapes is None:
-        shapes = []
-        for piece in block.pieces:
-            faces = np.hstack([np.full((len(piece.faces), 1), 3), piece.faces]).ravel()
-            shapes.append(fcl.Convex(np.ascontiguousarray(piece.vertices), len(piece.faces), faces))
-        _FCL[block] = shapes
-    return shapes
-
-
-def _objects(block: Block, pose: Pose) -> list[fcl.CollisionObject]:
-    tf = fcl.Transform(pose.rotation, pose.position)
-    return [fcl.CollisionObject(g, tf) for g in _pieces(block)]
-
-
 def block_distance(a: list[fcl.CollisionObject], b: list[fcl.CollisionObject], stop_below: float) -> float:
     """Smallest distance between two posed blocks' pieces, metres (0 when they overlap).
 
@@ -211,7 +190,7 @@ def interlock(placed: Placed, foundation: Foundation, rule: InterlockRule | None
     height = max((b.height for _, b, _ in placed), default=0.0)
     reach = rule.neighbour_fraction * height
     world = world_of(placed)
-    objects = {k: _objects(b, p) for k, b, p in placed}
+    objects = {k: fcl_objects(b, p) for k, b, p in placed}
     contacts: dict[int, set[int]] = {k: set() for k, _, _ in placed}
     neighbours: dict[int, set[int]] = {k: set() for k, _, _ in placed}
     for key, block, pose in placed:

@@ -245,6 +245,46 @@ class SettleBackend(abc.ABC):
     def __repr__(self) -> str:
         return f"{type(self).__name__}(timestep={self.timestep:g})"
 
+    def _set_step(self, timestep: float, friction: float, check_every: int) -> None:
+        """Check and keep the settings every backend has (a ``ValueError`` names the backend)."""
+        if not (math.isfinite(timestep) and 0 < timestep <= 0.05):
+            raise ValueError(f"{type(self).__name__}: timestep {timestep!r} s must be in (0, 0.05]")
+        if not (math.isfinite(friction) and friction >= 0):
+            raise ValueError(f"{type(self).__name__}: friction {friction!r} must be non-negative")
+        self.timestep = float(timestep)
+        self.friction = float(friction)
+        self.check_every = max(1, int(check_every))
+
+    def _run(self, advance: Callable[[int], None],
+             observe: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+             radii: np.ndarray, seconds: float, early_stop: bool,
+             progress: Progress | None) -> tuple[int, bool, float]:
+        """The loop every backend shares: step, report progress, stop once at rest.
+
+        ``advance(n)`` runs ``n`` steps and raises ``RuntimeError`` if the
+        engine diverged; ``observe()`` gives the free blocks' positions,
+        quaternions, velocities and angular velocities (world frame) for a
+        :class:`RestMonitor`. Checks every ``check_every`` steps; returns the
+        steps run, whether every free block came to rest, and the peak speed.
+        """
+        monitor = RestMonitor(radii)
+        total = max(1, round(seconds / self.timestep))
+        steps, at_rest, next_report = 0, False, 0.0
+        while steps < total:
+            n = min(self.check_every, total - steps)
+            advance(n)
+            steps += n
+            # Simulated time as steps x step: an engine's own clock gathers rounding error.
+            t = steps * self.timestep
+            state = observe()
+            if progress is not None and (t >= next_report or steps == total):
+                progress(t, seconds)
+                next_report = t + 0.1
+            if monitor.update(t, *state) and early_stop:
+                at_rest = True
+                break
+        return steps, at_rest, monitor.peak
+
 
 @dataclass(frozen=True)
 class BlockSettle:

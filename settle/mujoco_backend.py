@@ -89,7 +89,7 @@ from geometry.constants import GRAVITY, tol
 from geometry.pose import Pose
 from geometry.scene import Scene
 
-from .base import Progress, RestMonitor, Run, SettleBackend, SettleBody
+from .base import Progress, Run, SettleBackend, SettleBody
 from .section import foundation_profile
 
 #: Thickness of the static foundation box below z = 0, and of the solid part
@@ -144,18 +144,12 @@ class MujocoBackend(SettleBackend):
         multiccd: bool = True,
         check_every: int = 10,
     ):
-        if not (math.isfinite(timestep) and 0 < timestep <= 0.05):
-            raise ValueError(f"MujocoBackend: timestep {timestep!r} s must be in (0, 0.05]")
-        if not (math.isfinite(friction) and friction >= 0):
-            raise ValueError(f"MujocoBackend: friction {friction!r} must be non-negative")
-        self.timestep = float(timestep)
-        self.friction = float(friction)
+        self._set_step(timestep, friction, check_every)
         self.solref = tuple(solref) if solref is not None else (0.012, 1.0)
         self.solimp = tuple(solimp)
         self.impratio = float(impratio)
         self.sleep = bool(sleep)
         self.multiccd = bool(multiccd)
-        self.check_every = max(1, int(check_every))
 
     # --- model ---------------------------------------------------------------
 
@@ -293,38 +287,27 @@ class MujocoBackend(SettleBackend):
         model = self.build(scene, bodies)
         data = mujoco.MjData(model)
         free = [bodies[i] for i in free_order(bodies)]
-        qvel = data.qvel.reshape(-1, 6)
+        q, v = data.qpos.reshape(-1, 7), data.qvel.reshape(-1, 6)
         for k, b in enumerate(free):
             # Free joint velocity: linear in the world frame, angular in the
             # body frame.
-            qvel[k, :3] = b.velocity
-            qvel[k, 3:] = b.pose.rotation.T @ b.angular_velocity
+            v[k, :3] = b.velocity
+            v[k, 3:] = b.pose.rotation.T @ b.angular_velocity
         if self.sleep:
             # Hold every block awake for the first rest_time (module docstring).
             data.tree_asleep[:] = -(1 + math.ceil(tol.rest_time / self.timestep))
+        done = [0]
 
-        monitor = RestMonitor(np.array([b.block.bounding_radius for b in free]))
-        total = max(1, round(seconds / self.timestep))
-        steps, at_rest = 0, False
-        next_report = 0.0
-        while steps < total:
-            n = min(self.check_every, total - steps)
+        def advance(n: int) -> None:
             mujoco.mj_step(model, data, nstep=n)
-            steps += n
-            # Simulated time as steps x step: data.time gathers rounding error.
-            t = steps * self.timestep
-            self._check_health(data, steps)
-            if progress is not None and (t >= next_report or steps == total):
-                progress(t, seconds)
-                next_report = t + 0.1
-            v = data.qvel.reshape(-1, 6)
-            q = data.qpos.reshape(-1, 7)
-            if monitor.update(t, q[:, :3], q[:, 3:], v[:, :3], v[:, 3:]) and early_stop:
-                at_rest = True
-                break
-        qpos = data.qpos.reshape(-1, 7)
-        poses = {b.id: Pose(qpos[k, :3], qpos[k, 3:]) for k, b in enumerate(free)}
-        return Run(poses, steps * self.timestep, steps, at_rest, monitor.peak)
+            done[0] += n
+            self._check_health(data, done[0])
+
+        steps, at_rest, peak = self._run(
+            advance, lambda: (q[:, :3], q[:, 3:], v[:, :3], v[:, 3:]),
+            np.array([b.block.bounding_radius for b in free]), seconds, early_stop, progress)
+        poses = {b.id: Pose(q[k, :3], q[k, 3:]) for k, b in enumerate(free)}
+        return Run(poses, steps * self.timestep, steps, at_rest, peak)
 
     @staticmethod
     def _check_health(data: mujoco.MjData, steps: int) -> None:

@@ -44,7 +44,7 @@ from geometry.constants import GRAVITY
 from geometry.errors import InputError
 from geometry.scene import Scene
 
-from .base import Progress, RestMonitor, Run, SettleBackend, SettleBody
+from .base import Progress, Run, SettleBackend, SettleBody
 from .section import foundation_profile, from_plane, outlines, to_plane
 
 #: Depth of the static foundation below its top, and its margin past the
@@ -83,16 +83,10 @@ class PymunkBackend(SettleBackend):
         bias: float = 0.9**60,
         check_every: int = 10,
     ):
-        if not (math.isfinite(timestep) and 0 < timestep <= 0.05):
-            raise ValueError(f"PymunkBackend: timestep {timestep!r} s must be in (0, 0.05]")
-        if not (math.isfinite(friction) and friction >= 0):
-            raise ValueError(f"PymunkBackend: friction {friction!r} must be non-negative")
-        self.timestep = float(timestep)
-        self.friction = float(friction)
+        self._set_step(timestep, friction, check_every)
         self.iterations = int(iterations)
         self.slop = float(slop)
         self.bias = float(bias)
-        self.check_every = max(1, int(check_every))
 
     def check(self, scene: Scene, bodies: Sequence[SettleBody]) -> None:
         """Only section scenes, with prism blocks turned about y only."""
@@ -176,22 +170,18 @@ class PymunkBackend(SettleBackend):
     ) -> Run:
         space, free = self.build(scene, bodies)
         moving = [b for b in bodies if b.movable]
-        monitor = RestMonitor(np.array([b.block.bounding_radius for b in moving]))
-        total = max(1, round(seconds / self.timestep))
-        steps, at_rest, next_report = 0, False, 0.0
-        while steps < total:
-            n = min(self.check_every, total - steps)
+        done = [0]
+
+        def advance(n: int) -> None:
             for _ in range(n):
                 space.step(self.timestep)
-            steps += n
-            t = steps * self.timestep
+            done[0] += n
+
+        def observe() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
             state = np.array([(*b.velocity, b.angular_velocity, *b.position, b.angle)
                               for b in free]).reshape(-1, 6)
             if not np.isfinite(state).all():
-                raise RuntimeError(f"pymunk diverged at step {steps} (non-finite state)")
-            if progress is not None and (t >= next_report or steps == total):
-                progress(t, seconds)
-                next_report = t + 0.1
+                raise RuntimeError(f"pymunk diverged at step {done[0]} (non-finite state)")
             zeros = np.zeros(len(free))
             v = np.column_stack([state[:, 0], zeros, state[:, 1]])
             w = np.column_stack([zeros, -state[:, 2], zeros])
@@ -199,11 +189,13 @@ class PymunkBackend(SettleBackend):
             p = np.column_stack([state[:, 3], zeros, state[:, 4]])
             half = -state[:, 5] / 2
             q = np.column_stack([np.cos(half), zeros, np.sin(half), zeros])
-            if monitor.update(t, p, q, v, w) and early_stop:
-                at_rest = True
-                break
+            return p, q, v, w
+
+        steps, at_rest, peak = self._run(advance, observe,
+                                         np.array([b.block.bounding_radius for b in moving]),
+                                         seconds, early_stop, progress)
         poses = {
             body.id: from_plane((b.position.x, b.position.y), b.angle, float(body.pose.position[1]))
             for body, b in zip(moving, free, strict=True)
         }
-        return Run(poses, steps * self.timestep, steps, at_rest, monitor.peak)
+        return Run(poses, steps * self.timestep, steps, at_rest, peak)

@@ -56,18 +56,16 @@ def seeded(tiny):
 
 def _distance_to_support(build: Build, key: int) -> float:
     """Shortest FCL distance from a block to each of its supports (the ground as a plane)."""
-    from geometry.collision import _fcl_pieces
+    from geometry.collision import fcl_objects
 
     block, pose = build.block, build.poses[key]
-    objs = [fcl.CollisionObject(g, fcl.Transform(pose.rotation, pose.position)) for g in _fcl_pieces(block)]
+    objs = fcl_objects(block, pose)
     worst = 0.0
     for s in build.supports[key]:
         if s == GROUND:
             d = float(pose.apply(block.vertices)[:, 2].min())
         else:
-            other = build.poses[s]
-            targets = [fcl.CollisionObject(g, fcl.Transform(other.rotation, other.position))
-                       for g in _fcl_pieces(block)]
+            targets = fcl_objects(block, build.poses[s])
             d = min(fcl.distance(a, b, fcl.DistanceRequest(), fcl.DistanceResult())
                     for a in objs for b in targets)
         worst = max(worst, d)
