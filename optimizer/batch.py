@@ -192,6 +192,15 @@ def _detect(data: Any, path: str) -> str:
     raise InputError(f"{path}: neither a shoha-layout/1 file nor a simulator save; name it with --from")
 
 
+def _error_row(row: dict[str, Any], exc: Exception, start: float) -> dict[str, Any]:
+    """The row of an item that failed: bad input in its one line, anything else as internal."""
+    if isinstance(exc, InputError):
+        error = str(exc).splitlines()[0] if str(exc) else "bad input"
+    else:
+        error = f"internal error: {type(exc).__name__}: {exc}"
+    return {**row, "status": "error", "error": error, "seconds": time.perf_counter() - start}
+
+
 def score_task(save: str, reference: str, source: str = "auto", block: str = "shake-4t",
                origin: tuple[float, float, float] = (0.0, 0.0, 0.0), scene: str | None = None,
                seconds: float = 2.0, slices: int = 4, layers: int = 2) -> dict[str, Any]:
@@ -210,12 +219,8 @@ def score_task(save: str, reference: str, source: str = "auto", block: str = "sh
         layout, scn = load_save(save, source, ref_layout, ref_scene, block, tuple(origin), scene)
         check_same_scene(scn, ref_scene, save)
         result = score(scn, layout.placed(), ref, seconds=seconds).to_dict()
-    except InputError as exc:
-        return {**row, "status": "error", "error": str(exc).splitlines()[0] if str(exc) else "bad input",
-                "seconds": time.perf_counter() - start}
     except Exception as exc:  # noqa: BLE001 - one bad item must not stop the batch
-        return {**row, "status": "error", "error": f"internal error: {type(exc).__name__}: {exc}",
-                "seconds": time.perf_counter() - start}
+        return _error_row(row, exc, start)
     pens = {p["name"]: p["points"] for p in result["penalties"]}
     row.update({
         "status": "ok", "error": "", "score": result["score"],
@@ -250,12 +255,8 @@ def optimize_task(scene: str, seed: int, time_limit: float, layouts: str) -> dic
         result = optimize(scn, seed=seed, time_limit=time_limit)
         path = Path(layouts) / f"{Path(scene).stem}-seed{seed}.json"
         write_layout(result.layout, path)
-    except InputError as exc:
-        return {**row, "status": "error", "error": str(exc).splitlines()[0] if str(exc) else "bad input",
-                "seconds": time.perf_counter() - start}
     except Exception as exc:  # noqa: BLE001 - one bad item must not stop the batch
-        return {**row, "status": "error", "error": f"internal error: {type(exc).__name__}: {exc}",
-                "seconds": time.perf_counter() - start}
+        return _error_row(row, exc, start)
     d = result.to_dict()
     row.update({"status": "ok", "error": "", "porosity_percent": d["porosity_percent"],
                 "blocks": d["blocks"], "required_blocks": d["required_blocks"],
