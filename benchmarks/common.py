@@ -77,7 +77,7 @@ PAPER_BLOCKS = (9, 17, 25)
 # --- the machine ----------------------------------------------------------------------
 
 _DISTRIBUTIONS = ("numpy", "scipy", "trimesh", "manifold3d", "python-fcl", "mujoco", "rtree",
-                  "matplotlib", "shoha")
+                  "matplotlib", "shoha", "pymunk")
 
 
 def cpu_model() -> str:

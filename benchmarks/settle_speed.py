@@ -28,16 +28,13 @@ Run::
     .venv/bin/python benchmarks/settle_speed.py --counts 10,75 --poured 75
 
 Writes ``benchmarks/results/settle_speed.csv``, ``settle_speed.json`` (the
-machine: cores, CPU model, library versions, load) and ``settle_speed.png``.
+machine, as every benchmark: ``common.Run``; the fitted exponent under
+``params``) and ``settle_speed.png``.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
-import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -55,7 +52,9 @@ from settle import MujocoBackend, settle  # noqa: E402
 from settle.base import SettleBody  # noqa: E402
 from settle.pour import pour  # noqa: E402
 
-RESULTS = ROOT / "benchmarks" / "results"
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from common import Run  # noqa: E402
+
 LAYOUTS = ROOT / "benchmarks" / "layouts"
 
 #: mini's cross-section (geometry/scenes/mini.toml), any length.
@@ -96,33 +95,6 @@ def reference(n: int) -> tuple[Scene, list]:
     y = np.array([p.position[1] for _, _, p in placed])
     keep = set(np.argsort(np.abs(y - (scene.design.y_start + scene.design.y_end) / 2), kind="stable")[:n])
     return scene, [b for i, b in enumerate(placed) if i in keep]
-
-
-def machine() -> dict:
-    import mujoco
-    import pymunk
-    import scipy
-
-    model = "unknown"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {
-        "cpu_model": model,
-        "cores": os.cpu_count(),
-        "platform": platform.platform(),
-        "python": platform.python_version(),
-        "mujoco": mujoco.__version__,
-        "pymunk": pymunk.version,
-        "numpy": np.__version__,
-        "scipy": scipy.__version__,
-        "load_average_start": os.getloadavg(),
-        "date": time.strftime("%Y-%m-%d %H:%M:%S %z"),
-    }
 
 
 def timed_settle(scene: Scene, pile: list, seconds: float, early_stop: bool) -> dict:
@@ -192,7 +164,7 @@ def measure(kind: str, scene: Scene, pile: list, seconds: float, pour_s: float |
     return row
 
 
-def run(counts: list[int], pour_counts: list[int], seconds: float) -> list[dict]:
+def run_rows(counts: list[int], pour_counts: list[int], seconds: float) -> list[dict]:
     rows = []
     for n in counts:
         scene, pile = reference(n)
@@ -212,7 +184,7 @@ def exponent(rows: list[dict], lo: int = 75) -> float | None:
     return float(np.polyfit(n, t, 1)[0])
 
 
-def plot(rows: list[dict], path: Path) -> None:
+def chart(rows: list[dict]):
     import matplotlib
 
     matplotlib.use("Agg")
@@ -240,8 +212,8 @@ def plot(rows: list[dict], path: Path) -> None:
     b.set_ylim(bottom=0)
     b.legend(fontsize=8)
     fig.suptitle("MuJoCo settle of shake-4t layouts (4 ms steps)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    return fig
 
 
 def counts_arg(text: str) -> list[int]:
@@ -257,26 +229,17 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds per settle")
     ap.add_argument("--no-png", action="store_true")
     args = ap.parse_args()
-    info = machine()
-    print(json.dumps(info))
-    rows = run(args.counts, args.poured, args.seconds)
-    info["load_average_end"] = os.getloadavg()
+    run = Run("settle_speed", {"counts": args.counts, "poured": args.poured, "seconds": args.seconds,
+                               "timestep_s": MujocoBackend().timestep, "seed": 0})
+    rows = run_rows(args.counts, args.poured, args.seconds)
     slope = exponent([r for r in rows if r["layout"] == "reference"])
     if slope is not None:
-        info["cost_exponent_reference_75_up"] = slope
+        run.params["cost_exponent_reference_75_up"] = slope
         print(f"reference layouts: CPU time ~ blocks^{slope:.2f} from 75 blocks up (least squares)")
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    fields: list[str] = []
-    for row in rows:
-        fields.extend(k for k in row if k not in fields)
-    with open(RESULTS / "settle_speed.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=fields)
-        w.writeheader()
-        w.writerows(rows)
-    (RESULTS / "settle_speed.json").write_text(json.dumps(info, indent=2) + "\n")
+    run.csv("settle_speed", rows)
     if not args.no_png:
-        plot(rows, RESULTS / "settle_speed.png")
-    print(f"wrote {RESULTS / 'settle_speed.csv'}")
+        run.figure("settle_speed", chart(rows))
+    run.done()
 
 
 if __name__ == "__main__":

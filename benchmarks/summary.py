@@ -109,8 +109,7 @@ def settle_speed() -> list[str]:
     data = rows("settle_speed")
     if not data:
         return []
-    m = meta_json("settle_speed")
-    slope = m.get("cost_exponent_reference_75_up")
+    slope = (meta("settle_speed") or {}).get("params", {}).get("cost_exponent_reference_75_up")
     out = ["## Settle speed (`settle_speed.csv`, owned by settle: docs/settle.md)", "",
            "| layout | blocks | scene | 2 s settle, wall (s) | ms per step | µs per step per block |",
            "|---|---:|---|---:|---:|---:|"]
@@ -120,11 +119,6 @@ def settle_speed() -> list[str]:
         out += ["", f"Least-squares log-log slope of CPU time against blocks, reference layouts of 75 "
                 f"blocks and more: {slope:.2f} (1 is linear)."]
     return out
-
-
-def meta_json(stem: str) -> dict:
-    """``results/STEM.json`` whatever its layout (settle_speed writes the machine at the top level)."""
-    return meta(stem) or {}
 
 
 def score_speed() -> list[str]:
@@ -281,7 +275,7 @@ def readme_block() -> list[str]:
         if r["blocks"] == "75":
             out.append(f"| physics settle, 75 blocks, 2 s simulated | {float(r['full_wall_s']):.2f} s | "
                        "2 s | `settle_speed.csv` |")
-    slope = meta_json("settle_speed").get("cost_exponent_reference_75_up")
+    slope = (meta("settle_speed") or {}).get("params", {}).get("cost_exponent_reference_75_up")
     if slope is not None:
         out.append(f"| settle cost against blocks, 75-1000, log-log slope | {slope:.2f} | about 1 | "
                    "`settle_speed.json` |")
