@@ -15,7 +15,7 @@ Two kinds of layout, both at rest on the foundation:
 * **poured**: a jumbled pile like a trainee's, made by physics: blocks dropped
   in waves into ``mini`` (``settle.pour``, seed 0). Pouring 1000 blocks takes
   minutes, so ``make bench`` pours 10 and 75 only; ``--poured 10,75,300,1000``
-  pours the rest into mini's section stretched along the crest.
+  pours the rest into mini's section made longer (``benchmarks/scenes/``).
 
 Each layout is settled twice: for the full 2 s (``early_stop=False``), which
 gives the cost per step, and as the CLI does it, stopping early once every
@@ -47,37 +47,23 @@ import numpy as np  # noqa: E402
 
 from geometry.collision import collisions  # noqa: E402
 from geometry.layout import read_layout  # noqa: E402
-from geometry.scene import Scene, load_scene, parse_scene  # noqa: E402
+from geometry.scene import Scene, load_scene  # noqa: E402
 from settle import MujocoBackend, settle  # noqa: E402
 from settle.base import SettleBody  # noqa: E402
 from settle.pour import pour  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from common import Run  # noqa: E402
+from common import LONG_COPIES, Run, long_scene  # noqa: E402
 
 LAYOUTS = ROOT / "benchmarks" / "layouts"
 
-#: mini's cross-section (geometry/scenes/mini.toml), any length.
-LONG_SCENE = """
-name = "long-{n}"
-kind = "3d"
-block = "shake-4t"
-target_porosity_percent = 56.0
-[design]
-crest_width_m = 4.0
-height_m = 3.0
-slope_rise_run = [3.0, 4.0]
-length_m = {length!r}
-"""
-
-
 def scene_for(n: int) -> Scene:
-    """mini for up to 75 blocks; beyond, mini's section stretched to hold n."""
-    mini = load_scene("mini")
-    if n <= mini.required_blocks:
-        return mini
-    text = LONG_SCENE.format(n=n, length=mini.length * n / mini.required_blocks)
-    return parse_scene(text, source=f"long-{n}", base_dir=None)
+    """mini for up to 75 blocks; beyond, the shortest shipped long scene of mini's section that holds n."""
+    copies = next((k for k in LONG_COPIES if k * 75 >= n), None)
+    if copies is None:
+        raise SystemExit(f"settle_speed: no shipped scene holds {n} poured blocks "
+                         f"(at most {75 * LONG_COPIES[-1]})")
+    return long_scene(copies)
 
 
 def reference(n: int) -> tuple[Scene, list]:
