@@ -77,6 +77,23 @@ class TrapezoidalPrism:
         """Volume, m^3."""
         return self.section_area * self.length
 
+    def half_width(self, z: float) -> float:
+        """Half width of the cross-section at height ``z`` (the slopes carried on)."""
+        return self.bottom_half_width + (self.top_half_width - self.bottom_half_width) * (
+            z - self.z_bottom) / self.height
+
+    def cut(self, slices: int, layers: int) -> list[TrapezoidalPrism]:
+        """The prism cut into ``slices`` equal lengths along y and ``layers`` equal heights.
+
+        Each part is again a trapezoidal prism whose half widths follow the
+        slopes; slice-major order (part ``i * layers + j``).
+        """
+        ys = np.linspace(self.y_start, self.y_end, slices + 1)
+        zs = np.linspace(self.z_bottom, self.z_top, layers + 1)
+        return [TrapezoidalPrism(self.half_width(zs[j]), self.half_width(zs[j + 1]), float(zs[j]),
+                                 float(zs[j + 1]), float(ys[i]), float(ys[i + 1]))
+                for i in range(slices) for j in range(layers)]
+
     @property
     def section(self) -> np.ndarray:
         """(4, 2) float: the cross-section's corners (x, z), counter-clockwise from bottom left."""

@@ -55,16 +55,8 @@ class Energy:
         self.required = required
         self.target = target
         self.v_block = scene.block.volume
-        # Design-prism volume of each slice, for turning block volume into porosity.
-        d = scene.design
-        fractions = []
-        for j in range(SLICES_UP):
-            z0, z1 = d.z_bottom + d.height * j / SLICES_UP, d.z_bottom + d.height * (j + 1) / SLICES_UP
-            w0 = d.bottom_half_width + (d.top_half_width - d.bottom_half_width) * (z0 - d.z_bottom) / d.height
-            w1 = d.bottom_half_width + (d.top_half_width - d.bottom_half_width) * (z1 - d.z_bottom) / d.height
-            fractions.append((w0 + w1) * (z1 - z0))
-        per_up = np.array(fractions) * d.length / SLICES_ALONG
-        self.slice_volume = np.tile(per_up, SLICES_ALONG)
+        # Design-prism volume of each slice (slice_index order), for turning block volume into porosity.
+        self.slice_volume = np.array([p.volume for p in scene.design.cut(SLICES_ALONG, SLICES_UP)])
         self.filled = np.zeros(SLICES_ALONG * SLICES_UP)
 
     def total(self, count: int, porosity: float, weak: int) -> float:

@@ -157,18 +157,8 @@ def zone_prisms(scene: Scene, slices: int = DEFAULT_SLICES, layers: int = DEFAUL
     for name, n in (("slices", slices), ("layers", layers)):
         if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= 100:
             raise InputError(f"porosity map: {name} must be an integer from 1 to 100, not {n!r}")
-    d = scene.design
-
-    def half_width(z: float) -> float:
-        return d.bottom_half_width + (d.top_half_width - d.bottom_half_width) * (z - d.z_bottom) / d.height
-
-    ys = np.linspace(d.y_start, d.y_end, slices + 1)
-    zs = np.linspace(d.z_bottom, d.z_top, layers + 1)
-    return [
-        (i, j, TrapezoidalPrism(half_width(zs[j]), half_width(zs[j + 1]), float(zs[j]), float(zs[j + 1]),
-                                float(ys[i]), float(ys[i + 1])))
-        for i in range(slices) for j in range(layers)
-    ]
+    parts = scene.design.cut(slices, layers)
+    return [(i, j, parts[i * layers + j]) for i in range(slices) for j in range(layers)]
 
 
 def porosity_map(scene: Scene, placed: Placed, slices: int = DEFAULT_SLICES,
