@@ -301,19 +301,22 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
 
 
 def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[str, float, float, float]]:
-    """Pattern sites in crane order: the lattice, then the lattice shifted by half a cell, and so on.
+    """Pattern sites in crane order: the lattice, then the layer laid on it, and so on.
 
     Each pass lands on the one before where it left no room below: the next
-    layer, nested into the pockets of the one under it. A nested layer adds
-    about 0.8 H of height, so the zone's height sets the number of passes
-    (two for ``mini``'s 3.55 m zone and 1.66 m blocks, more for taller mounds).
+    layer, nested into the pockets of the one under it. The second pass is
+    the lattice's tuned upper layer where it has one (tetrapods), otherwise
+    the lattice shifted by half a cell; later passes alternate the two. A
+    nested layer adds about 0.8 H of height, so the zone's height sets the
+    number of passes (two for ``mini``'s 3.55 m zone and 1.66 m blocks, more
+    for taller mounds).
     """
     z = problem.scene.tolerance
     xr, yr = (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
     lat = problem.lattice
     passes = max(2, int(np.floor((z.z_top - z.z_bottom) / (0.8 * problem.scene.block.height))))
-    shifted = (origin[0] + lat.w / 2, origin[1] + lat.p / 2)
+    upper, shifted = lat.second_layer(origin)
     sites = []
     for n in range(passes):
-        sites += lat.sites(xr, yr, origin if n % 2 == 0 else shifted)
+        sites += lat.sites(xr, yr, origin) if n % 2 == 0 else upper.sites(xr, yr, shifted)
     return sites

@@ -5,6 +5,7 @@ from __future__ import annotations
 import itertools
 import json
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,11 +17,20 @@ from geometry.samples import random_quaternion
 from geometry.scene import load_scene
 from optimizer.anneal import Annealing, energy_of
 from optimizer.api import optimize
+from optimizer.base import Problem
 from optimizer.beam import BeamSearch
 from optimizer.cpsat import CpSat
 from optimizer.drop import DropWorld, Shape
 from optimizer.hangings import BASE, FAMILIES, hanging
-from optimizer.patterns import TUNED, InterlockLattice, _lattice_penalty, lattice_for
+from optimizer.patterns import (
+    TUNED,
+    InterlockLattice,
+    UpperLayer,
+    _lattice_penalty,
+    first_layer,
+    lattice_for,
+    upper_tops,
+)
 from tests.conftest import ROOT, shoha
 from tests.test_strategies import TINY, assert_valid, problem
 
@@ -82,6 +92,65 @@ def test_tuned_lattices_are_crane_feasible(name):
     tighter = InterlockLattice(lat.p * f, lat.w * f, lat.q * f, lat.u * f, lat.v * f, lat.yaw_a, lat.yaw_b)
     p2 = np.array([tighter.p, tighter.w, tighter.q, tighter.u, tighter.v, tighter.yaw_a, tighter.yaw_b])
     assert _lattice_penalty(p2, block, ("crown", "level")) > tighter.area_per_block + 0.01
+
+
+def test_tuned_upper_layer_nests_under_the_tetrapod_crest():
+    """The tetrapod's second layer sinks into the first and stays under the zone's crest.
+
+    Its blocks, lowered in crane order onto a patch of the first layer, top
+    out below the ``tetrapod`` scene's tolerance crest; its first site (the
+    one the tuning lowers first) ends more than 0.1 m lower than a block
+    height above the first layer: it nests.
+    """
+    from geometry.blocks import get_block
+
+    block = get_block("tetrapod:2.0")
+    lat = lattice_for(block, "tetrapod:2.0")
+    assert lat.upper is not None
+    crest = load_scene("tetrapod").tolerance.z_top
+    world = first_layer(lat, block)
+    tops = upper_tops(world, block, lat, lat.upper)
+    first_top = max(p.vertices[:, 2].max() for k in range(len(world)) for p in world._placed[k][2])
+    assert first_top == pytest.approx(block.height, abs=2 * tol.drop_resolution)  # on the ground
+    assert tops.max() < crest
+    assert tops[0] < first_top + block.height - 0.1
+
+
+def test_second_pass_lays_the_upper_layer():
+    """The beam's second pass is the tuned upper layer; without one, the first shifted by half a cell."""
+    from optimizer.beam import pattern_sites
+
+    scene = load_scene("tetrapod")
+    prob = problem(scene)
+    lat, up = prob.lattice, prob.lattice.upper
+    sites = pattern_sites(prob, (0.0, 0.0))
+    first = lat.sites((-scene.tolerance.bottom_half_width, scene.tolerance.bottom_half_width),
+                      (scene.tolerance.y_start, scene.tolerance.y_end), (0.0, 0.0))
+    assert sites[: len(first)] == first
+    second = sites[len(first):]
+    assert {(f, round(yaw, 9)) for f, yaw, _, _ in second} == {(up.family_a, round(up.yaw_a, 9)),
+                                                                (up.family_b, round(up.yaw_b, 9))}
+    crown = next((x, y) for f, yaw, x, y in second if f == up.family_a)
+    # On the lattice through (dx, dy): an integer combination of the lattice vectors away.
+    j = round((crown[0] - up.dx) / lat.w)
+    assert crown[0] == pytest.approx(up.dx + j * lat.w)
+    i = (crown[1] - up.dy - j * lat.q) / lat.p
+    assert i == pytest.approx(round(i), abs=1e-9)
+    plain = Problem(scene, scene.required_blocks, scene.target_porosity, replace(lat, upper=None))
+    shifted = pattern_sites(plain, (0.0, 0.0))[len(first):]
+    assert shifted == lat.sites((-scene.tolerance.bottom_half_width, scene.tolerance.bottom_half_width),
+                                (scene.tolerance.y_start, scene.tolerance.y_end), (lat.w / 2, lat.p / 2))
+
+
+def test_lattice_with_upper_layer_round_trips_through_json(tmp_path):
+    from dataclasses import asdict
+
+    from geometry.blocks import get_block
+
+    lat = lattice_for(get_block("tetrapod:2.0"), "tetrapod:2.0")
+    back = InterlockLattice(**json.loads(json.dumps(asdict(lat))))
+    assert back == lat and isinstance(back.upper, UpperLayer)
+    assert back.scaled(2.0).upper.dx == pytest.approx(2.0 * lat.upper.dx)
 
 
 class _CheckedAnnealing(Annealing):
