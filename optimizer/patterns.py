@@ -31,7 +31,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,9 @@ from .hangings import hanging
 @dataclass(frozen=True)
 class UpperLayer:
     """A second layer on an :class:`InterlockLattice`, with its lattice vectors.
+
+    Its site fields (``u`` to ``family_b``) mean what the lattice's own do,
+    for the second layer; ``dx, dy`` place it on the first.
 
     Attributes
     ----------
@@ -108,10 +111,9 @@ class InterlockLattice:
     def scaled(self, factor: float) -> InterlockLattice:
         up = self.upper
         if up is not None:
-            up = UpperLayer(up.dx * factor, up.dy * factor, up.u * factor, up.v * factor,
-                            up.yaw_a, up.yaw_b, up.family_a, up.family_b)
-        return InterlockLattice(self.p * factor, self.w * factor, self.q * factor, self.u * factor,
-                                self.v * factor, self.yaw_a, self.yaw_b, self.family_a, self.family_b, up)
+            up = replace(up, dx=up.dx * factor, dy=up.dy * factor, u=up.u * factor, v=up.v * factor)
+        return replace(self, p=self.p * factor, w=self.w * factor, q=self.q * factor, u=self.u * factor,
+                       v=self.v * factor, upper=up)
 
     def second_layer(self, origin: tuple[float, float]) -> tuple[InterlockLattice, tuple[float, float]]:
         """The lattice and origin of the layer laid on this one from ``origin``.
@@ -122,8 +124,8 @@ class InterlockLattice:
         up = self.upper
         if up is None:
             return self, (origin[0] + self.w / 2, origin[1] + self.p / 2)
-        lat = InterlockLattice(self.p, self.w, self.q, up.u, up.v, up.yaw_a, up.yaw_b,
-                               up.family_a, up.family_b)
+        lat = replace(self, u=up.u, v=up.v, yaw_a=up.yaw_a, yaw_b=up.yaw_b, family_a=up.family_a,
+                      family_b=up.family_b, upper=None)
         return lat, (origin[0] + up.dx, origin[1] + up.dy)
 
     def sites(self, x_range: tuple[float, float], y_range: tuple[float, float],
@@ -267,8 +269,7 @@ def tune_upper(block: Block, lattice: InterlockLattice, seed: int = 0, maxiter: 
               (0.0, 2 * np.pi / 3), (0.0, 2 * np.pi / 3)]
     r = differential_evolution(_upper_penalty, bounds, args=(world, block, lattice, families), seed=seed,
                                maxiter=maxiter, popsize=15, tol=1e-8, polish=False)
-    up = UpperLayer(*(float(x) for x in r.x), *families)
-    return InterlockLattice(**{**asdict(lattice), "upper": up})
+    return replace(lattice, upper=UpperLayer(*(float(x) for x in r.x), *families))
 
 
 #: Tuned lattices, lengths per unit block height H. Each was found by
