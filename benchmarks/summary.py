@@ -51,14 +51,27 @@ def f(value: str, digits: int = 3) -> str:
     return f"{float(value):.{digits}g}" if value not in ("", None) else ""
 
 
+def table(heading: str, columns: str, cells: list[list[object]]) -> list[str]:
+    """A ``## heading`` and a Markdown table of ``cells``; [] when there are no rows.
+
+    ``columns`` holds the column names separated by ``|``. A name starting
+    with ``<`` is a left-aligned text column (the ``<`` is not printed); the
+    others are right-aligned numbers.
+    """
+    if not cells:
+        return []
+    names = [c.strip() for c in columns.strip().strip("|").split("|")]
+    align = "|" + "".join("---|" if n.startswith("<") else "---:|" for n in names)
+    header = "| " + " | ".join(n.removeprefix("<") for n in names) + " |"
+    body = ["| " + " | ".join(str(c) for c in row) + " |" for row in cells]
+    return [f"## {heading}", "", header, align, *body]
+
+
 def porosity_speed() -> list[str]:
-    out = ["## Porosity speed (`porosity_speed.csv`)", "",
-           "| case | method | blocks | divisions | median (ms) | target (ms) | meets |",
-           "|---|---|---:|---:|---:|---:|---|"]
-    for r in rows("porosity_speed"):
-        out.append(f"| {r['case']} | {r['method']} | {r['blocks']} | {r['divisions']} | "
-                   f"{float(r['median_ms']):.3f} | {r['target_ms']} | {r['meets_target']} |")
-    return out
+    return table("Porosity speed (`porosity_speed.csv`)",
+                 "<case | <method | blocks | divisions | median (ms) | target (ms) | <meets",
+                 [[r["case"], r["method"], r["blocks"], r["divisions"], f"{float(r['median_ms']):.3f}",
+                   r["target_ms"], r["meets_target"]] for r in rows("porosity_speed")])
 
 
 def paper() -> list[str]:
@@ -77,113 +90,86 @@ def accuracy() -> list[str]:
 
 
 def collision() -> list[str]:
-    out = ["## Collision checks against naive pairwise FCL (`collision_speed.csv`)", "",
-           "| layout | blocks | shoha check (ms) | shoha contact (ms) | naive pairwise (ms) | "
-           "naive pairs/s | shoha contact pairs/s | speed-up | same pairs |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
-    for r in rows("collision_speed"):
-        out.append(f"| {r['layout']} | {r['blocks']} | {1e3 * float(r['shoha_check_s']):.1f} | "
-                   f"{1e3 * float(r['shoha_contact_s']):.1f} | {1e3 * float(r['naive_s']):.1f} | "
-                   f"{f(r['naive_pairs_per_s'])} | {f(r['shoha_contact_pairs_per_s'])} | "
-                   f"{float(r['speedup_contact']):.1f}× | {r['same_pairs']} |")
-    return out
+    return table("Collision checks against naive pairwise FCL (`collision_speed.csv`)",
+                 "<layout | blocks | shoha check (ms) | shoha contact (ms) | naive pairwise (ms) | "
+                 "naive pairs/s | shoha contact pairs/s | speed-up | <same pairs",
+                 [[r["layout"], r["blocks"], f"{1e3 * float(r['shoha_check_s']):.1f}",
+                   f"{1e3 * float(r['shoha_contact_s']):.1f}", f"{1e3 * float(r['naive_s']):.1f}",
+                   f(r["naive_pairs_per_s"]), f(r["shoha_contact_pairs_per_s"]),
+                   f"{float(r['speedup_contact']):.1f}×", r["same_pairs"]] for r in rows("collision_speed")])
 
 
 def scaling() -> list[str]:
     data = rows("scaling")
-    if not data:
-        return []
     keys = ("exact", "exact_disjoint", "voxel", "collisions", "settle")
-    out = ["## Scaling (`scaling.csv`, `.png`)", "",
-           "| blocks | " + " | ".join(f"{k} (s)" for k in keys) + " |",
-           "|---:|" + "---:|" * len(keys)]
-    for r in data:
-        settle = f(r["settle_s"]) + (" (extrapolated)" if r["settle_extrapolated"] == "True" else "")
-        out.append(f"| {r['blocks']} | " + " | ".join(f(r[f"{k}_s"]) for k in keys[:-1]) + f" | {settle} |")
-    out.append("| slope (log-log, 75+) | " + " | ".join(f"{float(data[0][f'{k}_slope']):.2f}" for k in keys)
-               + " |")
-    return out
+    cells: list[list[object]] = [
+        [r["blocks"], *(f(r[f"{k}_s"]) for k in keys[:-1]),
+         f(r["settle_s"]) + (" (extrapolated)" if r["settle_extrapolated"] == "True" else "")] for r in data]
+    if data:
+        cells.append(["slope (log-log, 75+)", *(f"{float(data[0][f'{k}_slope']):.2f}" for k in keys)])
+    return table("Scaling (`scaling.csv`, `.png`)", "blocks | " + " | ".join(f"{k} (s)" for k in keys), cells)
 
 
 def settle_speed() -> list[str]:
     data = rows("settle_speed")
-    if not data:
-        return []
+    out = table("Settle speed (`settle_speed.csv`, owned by settle: docs/settle.md)",
+                "<layout | blocks | <scene | 2 s settle, wall (s) | ms per step | µs per step per block",
+                [[r.get("layout", "poured"), r["blocks"], r["scene"], r["full_wall_s"], r["ms_per_step"],
+                  r["us_per_step_per_block"]] for r in data])
     slope = (meta("settle_speed") or {}).get("params", {}).get("cost_exponent_reference_75_up")
-    out = ["## Settle speed (`settle_speed.csv`, owned by settle: docs/settle.md)", "",
-           "| layout | blocks | scene | 2 s settle, wall (s) | ms per step | µs per step per block |",
-           "|---|---:|---|---:|---:|---:|"]
-    out += [f"| {r.get('layout', 'poured')} | {r['blocks']} | {r['scene']} | {r['full_wall_s']} | "
-            f"{r['ms_per_step']} | {r['us_per_step_per_block']} |" for r in data]
-    if slope is not None:
+    if out and slope is not None:
         out += ["", f"Least-squares log-log slope of CPU time against blocks, reference layouts of 75 "
                 f"blocks and more: {slope:.2f} (1 is linear)."]
     return out
 
 
 def score_speed() -> list[str]:
-    data = rows("score_speed")
-    if not data:
-        return []
-    out = ["## Scoring a 75-block save (`score_speed.csv`)", "",
-           "| save | score | `score()` median (s) | of which settle (s) | `shoha score` process, wall (s) | "
-           "under 3 s |", "|---|---:|---:|---:|---:|---|"]
-    out += [f"| {r['save']} | {r['score']} | {float(r['score_median_s']):.2f} | {float(r['settle_s']):.2f} | "
-            f"{float(r['cli_wall_s']):.2f} | {r['under_target']} |" for r in data]
-    return out
+    return table("Scoring a 75-block save (`score_speed.csv`)",
+                 "<save | score | `score()` median (s) | of which settle (s) | "
+                 "`shoha score` process, wall (s) | <under 3 s",
+                 [[r["save"], r["score"], f"{float(r['score_median_s']):.2f}", f"{float(r['settle_s']):.2f}",
+                   f"{float(r['cli_wall_s']):.2f}", r["under_target"]] for r in rows("score_speed")])
 
 
 def batch_cluster() -> list[str]:
     data = rows("batch_cluster")
-    if not data:
-        return []
-    out = ["## A batch of 200 saves (`batch_cluster.csv`)", "",
-           "| phase | runner | ran | skipped | errors | wall (s) |", "|---|---|---:|---:|---:|---:|"]
-    out += [f"| {r['phase']} | {r['runner']} | {r['ran']} | {r['skipped']} | {r['errors']} | "
-            f"{r['wall_s']} |" for r in data if r["phase"] != "compare"]
+    out = table("A batch of 200 saves (`batch_cluster.csv`)",
+                "<phase | <runner | ran | skipped | errors | wall (s)",
+                [[r["phase"], r["runner"], r["ran"], r["skipped"], r["errors"], r["wall_s"]]
+                 for r in data if r["phase"] != "compare"])
     comp = [r for r in data if r["phase"] == "compare"]
-    if comp:
+    if out and comp:
         out += ["", f"Dask rows identical to `--workers 2`: {comp[0]['rows_match_pool']} "
                 f"({comp[0]['rows_differing']} differing, {comp[0]['repeated_items']} repeated)."]
     return out
 
 
 def optimizer_quality() -> list[str]:
-    data = rows("optimizer_quality")
-    if not data:
-        return []
-    out = ["## Optimizer quality against time (`optimizer_quality.csv`, `.png`)", "",
-           "| method | budget (s) | took (s) | blocks | porosity (%) | error (pp) | violations | valid |",
-           "|---|---:|---:|---:|---:|---:|---:|---|"]
-    out += [f"| {r['method']} | {r['budget_s']} | {r['seconds']} | {r['blocks']} | "
-            f"{float(r['porosity_percent']):.2f} | {float(r['porosity_error']):.2f} | {r['violations']} | "
-            f"{r['valid']} |" for r in data]
-    return out
+    return table("Optimizer quality against time (`optimizer_quality.csv`, `.png`)",
+                 "<method | budget (s) | took (s) | blocks | porosity (%) | error (pp) | violations | <valid",
+                 [[r["method"], r["budget_s"], r["seconds"], r["blocks"],
+                   f"{float(r['porosity_percent']):.2f}", f"{float(r['porosity_error']):.2f}",
+                   r["violations"], r["valid"]]
+                  for r in rows("optimizer_quality")])
 
 
 def optimizer_scaling() -> list[str]:
     data = rows("optimizer_scaling")
-    if not data:
-        return []
-    out = ["## Optimizer run time against block count (`optimizer_scaling.csv`, `.png`)", "",
-           "| scene | blocks required | placed | wall (s) | beam (s) | anneal (s) | CP-SAT (s) | "
-           "settle (s) | porosity (%) | CP-SAT gap (%) | valid |",
-           "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
-    out += [f"| {r['scene']} | {r['required_blocks']} | {r['blocks']} | {r['seconds']} | {r['beam_s']} | "
-            f"{r['anneal_s']} | {r['cpsat_s']} | {r['settle_s']} | {float(r['porosity_percent']):.2f} | "
-            f"{r['cpsat_gap_percent']} | {r['valid']} |" for r in data]
-    out += ["", f"Log-log slope of wall time against blocks over the long scenes: "
-            f"{float(data[0]['fitted_slope_long_scenes']):.2f}."]
+    out = table("Optimizer run time against block count (`optimizer_scaling.csv`, `.png`)",
+                "<scene | blocks required | placed | wall (s) | beam (s) | anneal (s) | CP-SAT (s) | "
+                "settle (s) | porosity (%) | CP-SAT gap (%) | <valid",
+                [[r["scene"], r["required_blocks"], r["blocks"], r["seconds"], r["beam_s"], r["anneal_s"],
+                  r["cpsat_s"], r["settle_s"], f"{float(r['porosity_percent']):.2f}", r["cpsat_gap_percent"],
+                  r["valid"]] for r in data])
+    if out:
+        out += ["", f"Log-log slope of wall time against blocks over the long scenes: "
+                f"{float(data[0]['fitted_slope_long_scenes']):.2f}."]
     return out
 
 
 def run_times() -> list[str]:
-    data = rows("run_all")
-    if not data:
-        return []
-    out = ["## `make bench` wall time (`run_all.csv`)", "", "| script | wall (s) | exit |", "|---|---:|---:|"]
-    out += [f"| {r['script']} | {float(r['wall_s']):.1f} | {r['exit_status']} |" for r in data]
-    return out
+    return table("`make bench` wall time (`run_all.csv`)", "<script | wall (s) | exit",
+                 [[r["script"], f"{float(r['wall_s']):.1f}", r["exit_status"]] for r in rows("run_all")])
 
 
 def main() -> None:
