@@ -48,7 +48,7 @@ from .hangings import hanging
 
 @dataclass(frozen=True)
 class UpperLayer:
-    """A second layer on an :class:`InterlockLattice`, with its lattice vectors.
+    """A second layer on an :class:`InterlockLattice`, on that lattice's vectors.
 
     Its site fields (``u`` to ``family_b``) mean what the lattice's own do,
     for the second layer; ``dx, dy`` place it on the first.
@@ -201,12 +201,17 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     return lattice
 
 
-def first_layer(lattice: InterlockLattice, block: Block, ring: int = 3) -> DropWorld:
-    """A (2 ring + 1)^2-cell patch of the lattice's first layer, resting on the ground."""
-    world = DropWorld(Foundation(), cell=2.0 * block.bounding_radius)
-    key = 0
-    for fam, yaw, du, dv in ((lattice.family_a, lattice.yaw_a, 0.0, 0.0),
-                             (lattice.family_b, lattice.yaw_b, lattice.u, lattice.v)):
+def _lay(world: DropWorld, block: Block, lattice: InterlockLattice,
+         sites: list[tuple[str, float, float, float]], ring: int, key: int) -> list[float]:
+    """Lower two-site rows over (2 ring + 1)^2 cells into ``world``, in crane order.
+
+    ``sites`` holds ``(family, yaw, x, y)`` of each site in the centre cell;
+    every first-site block goes in before any second-site block, row by row
+    along the crest. Returns the top height (m) of each site's centre block,
+    where it first touched after the blocks before it.
+    """
+    tops = []
+    for fam, yaw, du, dv in sites:
         shape = Shape.of(block, hanging(fam, yaw))
         for j in range(-ring, ring + 1):
             for i in range(-ring, ring + 1):
@@ -214,32 +219,28 @@ def first_layer(lattice: InterlockLattice, block: Block, ring: int = 3) -> DropW
                 z, _, _ = world.drop(shape, x, y)
                 world.add(key, shape, [x, y, z])
                 key += 1
+                if (j, i) == (0, 0):
+                    tops.append(z + float(shape.highs.max()))
+    return tops
+
+
+def first_layer(lattice: InterlockLattice, block: Block, ring: int = 3) -> DropWorld:
+    """A (2 ring + 1)^2-cell patch of the lattice's first layer, resting on the ground."""
+    world = DropWorld(Foundation(), cell=2.0 * block.bounding_radius)
+    _lay(world, block, lattice, [(lattice.family_a, lattice.yaw_a, 0.0, 0.0),
+                                 (lattice.family_b, lattice.yaw_b, lattice.u, lattice.v)], ring, 0)
     return world
 
 
 def upper_tops(world: DropWorld, block: Block, lattice: InterlockLattice, up: UpperLayer) -> np.ndarray:
     """Top heights (m) of the centre block of each site of an upper layer.
 
-    Its sites over 5 x 5 cells are lowered onto the first layer (``world``,
-    from :func:`first_layer`) in crane order, every first-site block before
-    any second-site block, each row along the crest in turn; a centre block's
-    height is where it first touches after the blocks before it.
+    Its sites over 5 x 5 cells are lowered onto a copy of the first layer
+    (``world``, from :func:`first_layer`) in crane order.
     """
-    world = world.copy()
-    key = 10**6
-    tops = []
-    for fam, yaw, du, dv in ((up.family_a, up.yaw_a, up.dx, up.dy),
-                             (up.family_b, up.yaw_b, up.dx + up.u, up.dy + up.v)):
-        shape = Shape.of(block, hanging(fam, yaw))
-        for j in range(-2, 3):
-            for i in range(-2, 3):
-                x, y = du + j * lattice.w, dv + i * lattice.p + j * lattice.q
-                z, _, _ = world.drop(shape, x, y)
-                world.add(key, shape, [x, y, z])
-                key += 1
-                if (j, i) == (0, 0):
-                    tops.append(z + shape.highs.max())
-    return np.array(tops)
+    return np.array(_lay(world.copy(), block, lattice, [(up.family_a, up.yaw_a, up.dx, up.dy),
+                                                        (up.family_b, up.yaw_b, up.dx + up.u, up.dy + up.v)],
+                         2, 10**6))
 
 
 def _upper_penalty(params: np.ndarray, world: DropWorld, block: Block, lattice: InterlockLattice,
@@ -248,8 +249,7 @@ def _upper_penalty(params: np.ndarray, world: DropWorld, block: Block, lattice: 
 
     The first site must nest as low as it can, for the layer to fit under
     the tolerance crest as far out towards the slopes as possible; the second
-    site goes where it fits best after it (on ``tetrapod`` it often does not
-    fit under the crest, and the search drops those sites).
+    site goes where it fits best after it.
     """
     tops = upper_tops(world, block, lattice, UpperLayer(*(float(x) for x in params), *families))
     return float(tops[0] + 0.1 * tops[1])
