@@ -1,0 +1,140 @@
+"""What limits the optimizer on the built-in ``tetrapod`` scene (issue 4).
+
+The scene asks for 81 tetrapods (H = 2 m) at 50 % porosity in a 3.5 m
+mound. With the count fixed at N, porosity is ``1 - N V f / V_B``, where
+``f`` is the share of the blocks' volume inside the design prism; so 81
+blocks come within 1 point of 50 % only if ``f`` is at least
+``0.49 V_B / (81 V)``, about 97.4 %. This script measures, on the same
+machine and code as everything else:
+
+* ``shoha optimize tetrapod`` for seeds 1, 2 and 3 (the default pipeline
+  and its 120 s limit): blocks placed, porosity, time, validity, CP-SAT
+  gap, and ``f``, split between blocks on the foundation and blocks resting
+  on other blocks; and the porosity the required count would give at the
+  same ``f``;
+* the toe: the farthest from the axis a tetrapod's centroid can be when it
+  rests on the foundation inside the tolerance zone, over random
+  orientations, and the largest ``f`` of a block resting there with its
+  centroid at a given distance from the axis. The design prism reaches
+  further out than any tetrapod can.
+
+Writes ``results/tetrapod_limit.{csv,json}`` (the runs) and
+``results/tetrapod_toe.csv`` (the toe).
+
+Run::
+
+    .venv/bin/python benchmarks/tetrapod_limit.py
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from common import Run
+
+from geometry.clip import volumes_inside
+from geometry.pose import Pose, quat_to_matrix
+from geometry.samples import random_quaternion
+from geometry.scene import load_scene
+from optimizer.api import optimize
+
+SEEDS = (1, 2, 3)
+LIMIT = 120.0
+#: A block whose lowest point is this close to the foundation rests on it, m.
+ON_GROUND = 0.05
+TOE_SAMPLES = 20000
+TOE_DISTANCES = (4.0, 4.2, 4.4, 4.6, 4.8)
+
+
+def inside_share_needed(scene, within: float = 1.0) -> float:
+    """Least inside share ``f`` for the required count to land within ``within`` points of target."""
+    filled = (1 - (scene.target_porosity + within) / 100) * scene.design_volume
+    return filled / (scene.required_blocks * scene.block.volume)
+
+
+def run_row(scene, seed: int) -> dict:
+    t0 = time.perf_counter()
+    r = optimize(scene, seed=seed, time_limit=LIMIT)
+    wall = time.perf_counter() - t0
+    placed = r.layout.placed()
+    block = scene.block
+    inside = volumes_inside(placed, scene.design.polytope)
+    lows = np.array([pose.position[2] + float((block.vertices @ quat_to_matrix(pose.quaternion)[2]).min())
+                     for _, _, pose in placed])
+    ground = lows <= ON_GROUND
+
+    def share(mask: np.ndarray) -> float:
+        """Share of the volume of the blocks in ``mask`` inside the design prism."""
+        return float(inside[mask].sum() / (max(1, mask.sum()) * block.volume))
+
+    f = share(np.ones(len(placed), bool))
+    projected = 100 * (1 - scene.required_blocks * block.volume * f / scene.design_volume)
+    return {
+        "seed": seed,
+        "required_blocks": scene.required_blocks,
+        "blocks": r.blocks,
+        "porosity_percent": round(r.porosity_percent, 3),
+        "seconds": round(wall, 1),
+        "collisions": r.collisions,
+        "out_of_tolerance": r.out_of_tolerance,
+        "stable": r.stable,
+        "cpsat_gap_percent": round(r.gap.get("gap_percent", float("nan")), 6),
+        "inside_share_percent": round(100 * f, 2),
+        "ground_blocks": int(ground.sum()),
+        "ground_inside_share_percent": round(100 * share(ground), 2),
+        "upper_blocks": int((~ground).sum()),
+        "upper_inside_share_percent": round(100 * share(~ground), 2),
+        "porosity_at_required_count_percent": round(projected, 2),
+        "inside_share_needed_percent": round(100 * inside_share_needed(scene), 2),
+    }
+
+
+def toe_rows(scene) -> list[dict]:
+    """How far out a tetrapod can rest on the foundation, and how much of it is then inside."""
+    block = scene.block
+    zone = scene.tolerance
+    # The zone's slope line, |x| <= half_width(z), in the section.
+    run_per_rise = (zone.bottom_half_width - zone.top_half_width) / (zone.z_top - zone.z_bottom)
+    rng = np.random.default_rng(0)
+    quats, lows, reach = [], [], []
+    for _ in range(TOE_SAMPLES):
+        q = random_quaternion(rng)
+        pts = block.vertices @ quat_to_matrix(q).T
+        z = pts[:, 2] - pts[:, 2].min()
+        half = zone.bottom_half_width - run_per_rise * (z - zone.z_bottom)
+        quats.append(q)
+        lows.append(float(pts[:, 2].min()))
+        reach.append(float(np.min(half - pts[:, 0])))  # furthest out the centroid goes, every vertex inside
+    reach = np.array(reach)
+    rows = []
+    for d in TOE_DISTANCES:
+        # Each orientation that reaches d, with its centroid at d: further out is no more inside.
+        far = np.flatnonzero(reach >= d)
+        placed = [(i, block, Pose(np.array([d, scene.length / 2, -lows[i]]), quats[i])) for i in far]
+        inside = volumes_inside(placed, scene.design.polytope) / block.volume if len(far) else np.zeros(0)
+        rows.append({"centroid_at_least_m": d, "orientations": len(far),
+                     "best_inside_share_percent": round(100 * float(inside.max()), 2) if len(far) else "",
+                     "reach_m": round(float(reach.max()), 3),
+                     "design_base_half_width_m": round(scene.design.bottom_half_width, 3)})
+    return rows
+
+
+def main() -> None:
+    scene = load_scene("tetrapod")
+    run = Run("tetrapod_limit", {"scene": scene.name, "seeds": list(SEEDS), "time_limit_s": LIMIT,
+                                 "on_ground_m": ON_GROUND, "toe_samples": TOE_SAMPLES})
+    rows = []
+    for seed in SEEDS:
+        rows.append(run_row(scene, seed))
+        print(rows[-1], flush=True)
+    run.csv("tetrapod_limit", rows)
+    toe = toe_rows(scene)
+    for r in toe:
+        print(r)
+    run.csv("tetrapod_toe", toe)
+    run.done()
+
+
+if __name__ == "__main__":
+    main()
