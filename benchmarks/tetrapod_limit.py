@@ -34,7 +34,7 @@ import numpy as np
 from common import Run
 
 from geometry.clip import volumes_inside
-from geometry.pose import Pose, quat_to_matrix
+from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene
 from optimizer.api import optimize
@@ -60,9 +60,7 @@ def run_row(scene, seed: int) -> dict:
     placed = r.layout.placed()
     block = scene.block
     inside = volumes_inside(placed, scene.design.polytope)
-    lows = np.array([pose.position[2] + float((block.vertices @ quat_to_matrix(pose.quaternion)[2]).min())
-                     for _, _, pose in placed])
-    ground = lows <= ON_GROUND
+    ground = np.array([pose.apply(block.vertices)[:, 2].min() <= ON_GROUND for _, _, pose in placed])
 
     def share(mask: np.ndarray) -> float:
         """Share of the volume of the blocks in ``mask`` inside the design prism."""
@@ -94,18 +92,16 @@ def toe_rows(scene) -> list[dict]:
     """How far out a tetrapod can rest on the foundation, and how much of it is then inside."""
     block = scene.block
     zone = scene.tolerance
-    # The zone's slope line, |x| <= half_width(z), in the section.
-    run_per_rise = (zone.bottom_half_width - zone.top_half_width) / (zone.z_top - zone.z_bottom)
     rng = np.random.default_rng(0)
     quats, lows, reach = [], [], []
     for _ in range(TOE_SAMPLES):
         q = random_quaternion(rng)
-        pts = block.vertices @ quat_to_matrix(q).T
-        z = pts[:, 2] - pts[:, 2].min()
-        half = zone.bottom_half_width - run_per_rise * (z - zone.z_bottom)
+        pts = Pose(np.zeros(3), q).apply(block.vertices)
+        low = float(pts[:, 2].min())
         quats.append(q)
-        lows.append(float(pts[:, 2].min()))
-        reach.append(float(np.min(half - pts[:, 0])))  # furthest out the centroid goes, every vertex inside
+        lows.append(low)
+        # The furthest out the centroid goes with every vertex inside the zone's slope line.
+        reach.append(float(np.min(zone.half_width(pts[:, 2] - low) - pts[:, 0])))
     reach = np.array(reach)
     rows = []
     for d in TOE_DISTANCES:
