@@ -51,8 +51,8 @@ def f(value: str, digits: int = 3) -> str:
     return f"{float(value):.{digits}g}" if value not in ("", None) else ""
 
 
-def table(heading: str, columns: str, cells: list[list[object]]) -> list[str]:
-    """A ``## heading`` and a Markdown table of ``cells``; [] when there are no rows.
+def table(heading: str, columns: str, cells: list[list[object]], note: str | None = None) -> list[str]:
+    """A ``## heading``, a Markdown table of ``cells`` and a ``note`` under it; [] when there are no rows.
 
     ``columns`` holds the column names separated by ``|``. A name starting
     with ``<`` is a left-aligned text column (the ``<`` is not printed); the
@@ -64,7 +64,7 @@ def table(heading: str, columns: str, cells: list[list[object]]) -> list[str]:
     align = "|" + "".join("---|" if n.startswith("<") else "---:|" for n in names)
     header = "| " + " | ".join(n.removeprefix("<") for n in names) + " |"
     body = ["| " + " | ".join(str(c) for c in row) + " |" for row in cells]
-    return [f"## {heading}", "", header, align, *body]
+    return [f"## {heading}", "", header, align, *body, *(["", note] if note else [])]
 
 
 def porosity_speed() -> list[str]:
@@ -111,16 +111,13 @@ def scaling() -> list[str]:
 
 
 def settle_speed() -> list[str]:
-    data = rows("settle_speed")
-    out = table("Settle speed (`settle_speed.csv`, owned by settle: docs/settle.md)",
-                "<layout | blocks | <scene | 2 s settle, wall (s) | ms per step | µs per step per block",
-                [[r.get("layout", "poured"), r["blocks"], r["scene"], r["full_wall_s"], r["ms_per_step"],
-                  r["us_per_step_per_block"]] for r in data])
     slope = (meta("settle_speed") or {}).get("params", {}).get("cost_exponent_reference_75_up")
-    if out and slope is not None:
-        out += ["", f"Least-squares log-log slope of CPU time against blocks, reference layouts of 75 "
-                f"blocks and more: {slope:.2f} (1 is linear)."]
-    return out
+    return table("Settle speed (`settle_speed.csv`, owned by settle: docs/settle.md)",
+                 "<layout | blocks | <scene | 2 s settle, wall (s) | ms per step | µs per step per block",
+                 [[r.get("layout", "poured"), r["blocks"], r["scene"], r["full_wall_s"], r["ms_per_step"],
+                   r["us_per_step_per_block"]] for r in rows("settle_speed")],
+                 None if slope is None else f"Least-squares log-log slope of CPU time against blocks, "
+                 f"reference layouts of 75 blocks and more: {slope:.2f} (1 is linear).")
 
 
 def score_speed() -> list[str]:
@@ -133,15 +130,14 @@ def score_speed() -> list[str]:
 
 def batch_cluster() -> list[str]:
     data = rows("batch_cluster")
-    out = table("A batch of 200 saves (`batch_cluster.csv`)",
-                "<phase | <runner | ran | skipped | errors | wall (s)",
-                [[r["phase"], r["runner"], r["ran"], r["skipped"], r["errors"], r["wall_s"]]
-                 for r in data if r["phase"] != "compare"])
     comp = [r for r in data if r["phase"] == "compare"]
-    if out and comp:
-        out += ["", f"Dask rows identical to `--workers 2`: {comp[0]['rows_match_pool']} "
-                f"({comp[0]['rows_differing']} differing, {comp[0]['repeated_items']} repeated)."]
-    return out
+    c = comp[0] if comp else None
+    note = (f"Dask rows identical to `--workers 2`: {c['rows_match_pool']} ({c['rows_differing']} differing, "
+            f"{c['repeated_items']} repeated)." if c else None)
+    return table("A batch of 200 saves (`batch_cluster.csv`)",
+                 "<phase | <runner | ran | skipped | errors | wall (s)",
+                 [[r["phase"], r["runner"], r["ran"], r["skipped"], r["errors"], r["wall_s"]]
+                  for r in data if r["phase"] != "compare"], note)
 
 
 def optimizer_quality() -> list[str]:
@@ -155,16 +151,14 @@ def optimizer_quality() -> list[str]:
 
 def optimizer_scaling() -> list[str]:
     data = rows("optimizer_scaling")
-    out = table("Optimizer run time against block count (`optimizer_scaling.csv`, `.png`)",
-                "<scene | blocks required | placed | wall (s) | beam (s) | anneal (s) | CP-SAT (s) | "
-                "settle (s) | porosity (%) | CP-SAT gap (%) | <valid",
-                [[r["scene"], r["required_blocks"], r["blocks"], r["seconds"], r["beam_s"], r["anneal_s"],
-                  r["cpsat_s"], r["settle_s"], f"{float(r['porosity_percent']):.2f}", r["cpsat_gap_percent"],
-                  r["valid"]] for r in data])
-    if out:
-        out += ["", f"Log-log slope of wall time against blocks over the long scenes: "
-                f"{float(data[0]['fitted_slope_long_scenes']):.2f}."]
-    return out
+    return table("Optimizer run time against block count (`optimizer_scaling.csv`, `.png`)",
+                 "<scene | blocks required | placed | wall (s) | beam (s) | anneal (s) | CP-SAT (s) | "
+                 "settle (s) | porosity (%) | CP-SAT gap (%) | <valid",
+                 [[r["scene"], r["required_blocks"], r["blocks"], r["seconds"], r["beam_s"], r["anneal_s"],
+                   r["cpsat_s"], r["settle_s"], f"{float(r['porosity_percent']):.2f}", r["cpsat_gap_percent"],
+                   r["valid"]] for r in data],
+                 f"Log-log slope of wall time against blocks over the long scenes: "
+                 f"{float(data[0]['fitted_slope_long_scenes']):.2f}." if data else None)
 
 
 def tetrapod_limit() -> list[str]:
