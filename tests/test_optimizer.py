@@ -142,6 +142,26 @@ def test_second_pass_lays_the_upper_layer():
                                 (scene.tolerance.y_start, scene.tolerance.y_end), (lat.w / 2, lat.p / 2))
 
 
+def test_origin_scans_reach_the_tetrapod_count():
+    """From the best-ranked origin, the pattern alone places all of ``tetrapod``'s blocks.
+
+    The count the pattern places is a step function of its origin (60 to 81
+    blocks here), and the steps that reach 81 are narrow; the line scans of
+    :func:`rank_origins` must land on them. The ranking is best first.
+    """
+    from optimizer.beam import ShapeCache, pattern_pass, rank_origins
+    from optimizer.build import Build
+
+    scene = load_scene("tetrapod")
+    prob = problem(scene)
+    shapes = ShapeCache(scene.block)
+    origins = rank_origins(prob, shapes, np.random.default_rng(1), Build(scene), 16, float("inf"), 3)
+    assert len(origins) == 48
+    best, worst = (pattern_pass(prob, shapes, Build(scene), o) for o in (origins[0], origins[-1]))
+    assert len(best) == scene.required_blocks
+    assert best.inside_volume >= worst.inside_volume
+
+
 def test_lattice_with_upper_layer_round_trips_through_json(tmp_path):
     from dataclasses import asdict
 
