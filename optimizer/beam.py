@@ -41,6 +41,9 @@ from .hangings import free, hanging
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
+#: Beam budget (s) from which origins are ranked in full: ``shoha optimize``'s
+#: default 120 s limit gives the beam about 80 s.
+RANK_SECONDS = 60.0
 
 
 @dataclass
@@ -84,11 +87,18 @@ class BeamSearch(Strategy):
     jitter_xy : float, metres
     jitter_yaw : float, radians
     origins : int
-        Pattern origins per line scan before the search, for scenes of up to
-        100 blocks; fewer for larger scenes (``origins * 100 / required``,
-        at least 4).
+        Random pattern origins probed before the search.
     scans : int
-        Line scans of origins, along and across the crest in turn.
+        Line scans of origins after the probes, along and across the crest
+        in turn (:func:`rank_origins`).
+    scan_origins : int
+        Origins on a scan along the crest (half as many across it), for
+        scenes of up to 100 blocks and a beam budget of at least
+        ``RANK_SECONDS``; fewer for larger scenes (``* 100 / required``) and
+        shorter budgets (``* budget / RANK_SECONDS``), at least 4. The count
+        follows from the scene and the time limit, not from the machine's
+        speed; only under a budget short of ``RANK_SECONDS``, where the
+        ranking keeps to 15 % of the beam's time, can a slow machine cut it.
     patience : int
         Fruitless rounds of fill drops before a partial layout is finished.
     accept : callable, optional
@@ -111,8 +121,8 @@ class BeamSearch(Strategy):
     name = "beam"
 
     def __init__(self, width: int = 4, lookahead: int = 3, jitter: int = 2, fill: int = 4,
-                 jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 16,
-                 scans: int = 3, patience: int = 4,
+                 jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 10,
+                 scans: int = 3, scan_origins: int = 16, patience: int = 4,
                  accept: Callable[[Problem, Build, Candidate], bool] | None = None,
                  origin: tuple[float, float] | None = None, restarts: int = 4, share: float = 0.75,
                  judge: Callable[[Problem, Build], bool] | None = None):
@@ -124,6 +134,7 @@ class BeamSearch(Strategy):
         self.jitter_yaw = jitter_yaw
         self.origins = origins
         self.scans = scans
+        self.scan_origins = scan_origins
         self.patience = patience
         self.accept = accept
         self.origin = origin
@@ -199,10 +210,13 @@ class BeamSearch(Strategy):
         if self.origin is not None:
             origins = [self.origin]
         else:
-            # A fixed number of trials, fewer for long scenes; the time cap binds only
-            # under a short time limit.
-            n = max(4, round(self.origins * min(1.0, 100 / max(problem.required, 1))))
-            origins = rank_origins(problem, shapes, rng, start, n, t0 + 0.4 * (end - t0), self.scans)
+            # Fewer trials for long scenes and short budgets. Under a short budget the
+            # search itself needs the time: the ranking keeps to 15 % of it.
+            budget = end - t0
+            n = max(4, round(self.scan_origins * min(1.0, 100 / max(problem.required, 1))
+                             * min(1.0, budget / RANK_SECONDS)))
+            cap = t0 + (0.4 if budget >= RANK_SECONDS else 0.15) * budget
+            origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n)
         best: tuple | None = None
         tried = 0
         runs = 0
@@ -284,35 +298,45 @@ class BeamSearch(Strategy):
 
 
 def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator, start: Build,
-                 n: int, stop: float, scans: int = 1) -> list[tuple[float, float]]:
+                 probes: int, stop: float, scans: int = 0, n: int = 16) -> list[tuple[float, float]]:
     """Pattern origins, best first: by the volume their sites alone place in the design prism.
 
-    The origins lie on ``scans`` line scans, taken in turn along the crest
-    (y) and across it (x). Each scan holds ``n`` origins spaced evenly over
-    one lattice period, with a seeded offset, through the best origin found
-    so far; the first goes through a seeded random origin. The count a
-    pattern places is a step function of its origin, nearly a sum of one
-    step in x (how many rows fit between the slopes) and one in y (how many
-    fit between the ends): on ``tetrapod`` it ranges from 60 to 81 blocks,
-    and the steps that reach 81 are about 0.3 m wide in x and 0.15 m in y:
-    a scan spaced finer than that cannot step over them. Trials stop at
-    ``stop`` (``time.monotonic()``), after the first.
+    First ``probes`` origins, (0, 0) and seeded random ones over one lattice
+    cell. Then ``scans`` line scans, taken in turn along the crest (y) and
+    across it (x), each through the best origin so far: ``n`` origins along
+    the crest, or ``n / 2`` across it, spaced evenly over one lattice period
+    with a seeded offset. The count a pattern places is a step function of
+    its origin, nearly a sum of one step in x (how many rows fit between the
+    slopes) and one in y (how many fit between the ends): on ``tetrapod`` it
+    ranges from 60 to 81 blocks, and the steps that reach 81 are about 0.3 m
+    wide in x and 0.16 m in y, against scan spacings of 0.23 m and 0.13 m at
+    ``n = 16``: a scan cannot step over them, where random probes often
+    miss them. Trials stop at ``stop`` (``time.monotonic()``), after the
+    first.
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
-    best = rng.uniform(0.0, 1.0, 2) * period
+    trials = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
+                             for _ in range(probes - 1)]
     scored: list[tuple[float, int, tuple[float, float]]] = []
+
+    def trial(origin: tuple[float, float]) -> None:
+        scored.append((-pattern_pass(problem, shapes, start, origin).inside_volume, len(scored), origin))
+
+    for origin in trials:
+        if scored and time.monotonic() > stop:
+            break
+        trial(origin)
     for scan in range(scans):
-        axis = 1 - scan % 2  # y first, and so twice in three: its steps are the narrower
-        offset = rng.uniform(0.0, 1.0)
-        for i in range(n):
-            if scored and time.monotonic() > stop:
-                break
-            origin = best.copy()
-            origin[axis] = (i + offset) / n * period[axis]
-            o = (float(origin[0]), float(origin[1]))
-            scored.append((-pattern_pass(problem, shapes, start, o).inside_volume, len(scored), o))
         best = np.array(min(scored)[2])
+        axis = 1 - scan % 2  # along the crest first: its steps are the narrower
+        m = n if axis == 1 else max(2, n // 2)  # the steps across are twice as wide
+        offset = rng.uniform(0.0, 1.0)
+        for i in range(m):
+            if time.monotonic() > stop:
+                break
+            best[axis] = (i + offset) / m * period[axis]
+            trial((float(best[0]), float(best[1])))
     scored.sort()
     return [o for _, _, o in scored]
 

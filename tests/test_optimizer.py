@@ -155,8 +155,8 @@ def test_origin_scans_reach_the_tetrapod_count():
     scene = load_scene("tetrapod")
     prob = problem(scene)
     shapes = ShapeCache(scene.block)
-    origins = rank_origins(prob, shapes, np.random.default_rng(1), Build(scene), 16, float("inf"), 3)
-    assert len(origins) == 48
+    origins = rank_origins(prob, shapes, np.random.default_rng(1), Build(scene), 1, float("inf"), 3, 16)
+    assert len(origins) == 1 + 16 + 8 + 16
     best, worst = (pattern_pass(prob, shapes, Build(scene), o) for o in (origins[0], origins[-1]))
     assert len(best) == scene.required_blocks
     assert best.inside_volume >= worst.inside_volume
