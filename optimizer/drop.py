@@ -160,6 +160,11 @@ class DropWorld:
         for cell in self._cells(position[0], position[1], shape.radius_xy):
             self._grid[cell].discard(key)
 
+    def top(self) -> float:
+        """The highest point of the placed blocks, m; 0.0 while none is placed."""
+        return max((float(pos[2] + shape.highs.max()) for shape, pos, _, _ in self._placed.values()),
+                   default=0.0)
+
     def copy(self) -> DropWorld:
         """An independent world sharing the immutable placed entries."""
         other = DropWorld(self.foundation, self.cell)

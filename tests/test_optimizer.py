@@ -45,6 +45,8 @@ def test_candidates_touch_what_they_rest_on(mini, shake):
     rng = np.random.default_rng(0)
     drops = DropWorld(mini.foundation, cell=2.2)
     world = CollisionWorld(cell=2.4)
+    assert drops.top() == 0.0
+    top = 0.0
     for k in range(40):
         shape = Shape.of(shake, random_quaternion(rng))
         x, y = rng.uniform([-3, 1], [3, 11])
@@ -60,6 +62,8 @@ def test_candidates_touch_what_they_rest_on(mini, shake):
             assert set(support) <= touched
         drops.add(k, shape, pose.position)
         world.add(k, shake, pose)
+        top = max(top, float(pose.apply(shake.vertices)[:, 2].max()))
+        assert drops.top() == pytest.approx(top, abs=1e-9)
 
 
 @pytest.mark.parametrize("family", FAMILIES)
