@@ -183,6 +183,17 @@ def tetrapod_toe() -> list[str]:
                   for r in rows("tetrapod_toe")])
 
 
+def tetrapod_nest() -> list[str]:
+    return table("How low a tetrapod rests on the first layer (`tetrapod_nest.csv`)",
+                 "<hanging | drops | first layer's top (m) | lowest top (m) | median top (m) | "
+                 "design crest (m) | inside share at the crest: median, 99th percentile, best (%)",
+                 [[r["family"], r["drops"], r["first_layer_top_m"], r["lowest_top_m"], r["median_top_m"],
+                   r["design_crest_m"],
+                   ", ".join(r[k] for k in ("median_inside_share_percent", "p99_inside_share_percent",
+                                            "best_inside_share_percent"))]
+                  for r in rows("tetrapod_nest")])
+
+
 def run_times() -> list[str]:
     return table("`make bench` wall time (`run_all.csv`)", "<script | wall (s) | exit",
                  [[r["script"], f"{float(r['wall_s']):.1f}", r["exit_status"]] for r in rows("run_all")])
@@ -194,7 +205,7 @@ def main() -> None:
               "median of repeated calls on the machine named at the foot."]]
     parts += [porosity_speed(), paper(), accuracy(), collision(), scaling(), settle_speed(), score_speed(),
               batch_cluster(), optimizer_quality(), optimizer_scaling(), tetrapod_limit(), tetrapod_toe(),
-              run_times()]
+              tetrapod_nest(), run_times()]
     text = "\n\n".join("\n".join(p) for p in parts if p)
     m = meta("run_all") or meta("porosity_speed")
     if m:
@@ -359,6 +370,21 @@ def tetrapod_block() -> list[str]:
            f"{each('ground_inside_share_percent', 1)} % inside; blocks resting on them, "
            f"{each('upper_inside_share_percent', 1)} %: the second layer nests into the first but "
            "still stands above the design crest, in the tolerance zone."]
+    nest = rows("tetrapod_nest")
+    if nest:
+        n0 = nest[0]
+        low = min(float(r["lowest_top_m"]) for r in nest)
+        best = max(nest, key=lambda r: float(r["best_inside_share_percent"]))
+        p99 = max(float(r["p99_inside_share_percent"]) for r in nest)
+        first, crest = float(n0["first_layer_top_m"]), float(n0["design_crest_m"])
+        out.append(f"  A tetrapod lowered onto the first layer, whose tops are at {first:.2f} m, "
+                   f"rests with its top at {low:.2f} m at the lowest ({n0['drops']} random drops "
+                   f"in each hanging and in free orientation), above the {crest:.1f} m design crest. "
+                   f"Over the middle of the crest, where only the crest cuts it, at most "
+                   f"{float(best['best_inside_share_percent']):.1f} % of such a block is inside "
+                   f"({best['family']} hanging; 99th percentile over all hangings {p99:.1f} %), "
+                   f"while with the blocks on the foundation as laid, the blocks on them would need "
+                   f"{each('upper_inside_share_needed_percent', 1)} % on average.")
     if near:
         t = near[0]
         samples = (meta("tetrapod_toe") or {}).get("params", {}).get("toe_samples", "many")
