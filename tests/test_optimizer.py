@@ -286,7 +286,7 @@ def test_time_limit_is_honoured_and_result_valid(tiny):
 
 def test_cli_optimize_writes_the_contract_keys(tmp_path):
     out = tmp_path / "ref.json"
-    r = shoha("optimize", TINY, "--out", str(out), "--seed", "1", "--time-limit", "60",
+    r = shoha("optimize", TINY, "--out", str(out), "--seed", "1", "--time-limit", "10",
               "--strategy", "beam", "--json")
     assert r.returncode == 0, r.stderr
     d = json.loads(r.stdout)
