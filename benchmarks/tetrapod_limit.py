@@ -80,8 +80,8 @@ def run_row(scene, seed: int) -> dict:
     f = share(np.ones(len(placed), bool))
     # With the blocks on the foundation as they are, the share the rest of the count would need.
     rest = scene.required_blocks - int(ground.sum())
-    needed = inside_share_needed(scene) * scene.required_blocks
-    rest_needed = (needed - ground.sum() * share(ground)) / max(rest, 1)
+    needed = inside_share_needed(scene) * scene.required_blocks * block.volume  # m^3 inside
+    rest_needed = (needed - inside[ground].sum()) / (max(rest, 1) * block.volume)
     projected = 100 * (1 - scene.required_blocks * block.volume * f / scene.design_volume)
     return {
         "seed": seed,
