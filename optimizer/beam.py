@@ -311,8 +311,10 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     ranges from 60 to 81 blocks, and the steps that reach 81 are about 0.3 m
     wide in x and 0.16 m in y, against scan spacings of 0.23 m and 0.13 m at
     ``n = 16``: a scan cannot step over them, where random probes often
-    miss them. Trials stop at ``stop`` (``time.monotonic()``), after the
-    first.
+    miss them. Trials stop at ``stop`` (``time.monotonic()``). A trial the
+    deadline cuts short is dropped, unless it is the only one: then the
+    origin it drew is all there is to rank (a budget too short for one pass
+    over a long scene).
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
@@ -321,7 +323,9 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     scored: list[tuple[float, int, tuple[float, float]]] = []
 
     def trial(origin: tuple[float, float]) -> None:
-        scored.append((-pattern_pass(problem, shapes, start, origin).inside_volume, len(scored), origin))
+        volume = pattern_pass(problem, shapes, start, origin, stop).inside_volume
+        if not scored or time.monotonic() <= stop:
+            scored.append((-volume, len(scored), origin))
 
     for origin in trials:
         if scored and time.monotonic() > stop:
@@ -341,12 +345,14 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     return [o for _, _, o in scored]
 
 
-def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple[float, float]) -> Build:
+def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple[float, float],
+                 stop: float = float("inf")) -> Build:
     """``start`` with the pattern's sites from ``origin`` lowered in crane order, as drawn,
-    up to the required count: the quick pass that ranks an origin."""
+    up to the required count or until ``stop`` (``time.monotonic()``): the quick pass
+    that ranks an origin."""
     b = start.copy()
     for fam, yaw, x, y in pattern_sites(problem, origin):
-        if len(b) >= problem.required:
+        if len(b) >= problem.required or time.monotonic() > stop:
             break
         c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
         if c is not None:

@@ -284,6 +284,21 @@ def test_time_limit_is_honoured_and_result_valid(tiny):
     assert r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
 
 
+def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path):
+    """A 2 km breakwater (about 12 000 blocks) in 4 s: one quick pass of the
+    pattern over it takes over a minute, so the origin ranking must stop at its
+    deadline too, and leave the search its time to place what it can."""
+    text = (ROOT / "geometry" / "scenes" / "mini.toml").read_text()
+    long = tmp_path / "long.toml"
+    long.write_text(text.replace("length_m = 12.220833333333333", "length_m = 2000.0"))
+    scene = load_scene(long)
+    t0 = time.monotonic()
+    r = optimize(scene, seed=1, time_limit=4.0)
+    assert time.monotonic() - t0 < 4.0 + 3.0
+    assert r.blocks > 0 and r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
+    assert r.summary().startswith(f"{scene.required_blocks} required, {r.blocks} fit: porosity ")
+
+
 def test_cli_optimize_writes_the_contract_keys(tmp_path):
     out = tmp_path / "ref.json"
     r = shoha("optimize", TINY, "--out", str(out), "--seed", "1", "--time-limit", "10",
