@@ -40,6 +40,34 @@ def tiny():
     return load_scene(TINY)
 
 
+@pytest.mark.parametrize("name", ["mini", "tetrapod"])
+def test_lower_refuses_exactly_the_drops_that_end_out_of_tolerance(name):
+    """``Build.lower`` skips the drop of a block that crosses the zone's ceiling at
+    ground height; that shortcut must refuse no block the drop would accept. Sites
+    over the whole zone and past its slopes, on the ground and on a first layer."""
+    from optimizer.beam import ShapeCache, pattern_pass
+    from optimizer.build import Build
+
+    scene = load_scene(name)
+    prob = problem(scene)
+    shapes = ShapeCache(scene.block)
+    zone = scene.tolerance
+    rng = np.random.default_rng(7)
+    refused = accepted = 0
+    for base in (Build(scene), pattern_pass(prob, shapes, Build(scene), (0.0, 0.0))):
+        for _ in range(150):
+            shape = shapes.get(hanging(str(rng.choice(FAMILIES)), float(rng.uniform(0, 2 * np.pi))))
+            x = float(rng.uniform(-zone.bottom_half_width - 1.0, zone.bottom_half_width + 1.0))
+            y = float(rng.uniform(zone.y_start - 1.0, zone.y_end + 1.0))
+            z, _, _ = base.drops.drop(shape, x, y)
+            world = Pose([x, y, z], shape.quaternion).apply(scene.block.vertices)
+            inside = bool(zone.polytope.contains(world).all())
+            assert (base.lower(shape, x, y) is not None) == inside, (x, y)
+            accepted += inside
+            refused += not inside
+    assert refused > 50 and accepted > 50
+
+
 def test_candidates_touch_what_they_rest_on(mini, shake):
     """Every drop ends in contact (FCL): not hovering, not penetrating."""
     rng = np.random.default_rng(0)
