@@ -365,5 +365,16 @@ def test_mini_reference_layout_is_valid(seed):
     assert r.seconds <= 120
 
 
+@pytest.mark.slow
+def test_tetrapod_same_seed_same_layout_at_the_default_limit():
+    """The contract's byte-for-byte rule at ``shoha optimize``'s default 120 s, on the
+    scene whose origin ranking is the longest: its work is fixed by count, not cut by
+    a clock (at a 40 % ranking cap, runs differed)."""
+    scene = load_scene("tetrapod")
+    a, b = (optimize(scene, seed=1, time_limit=120) for _ in range(2))
+    assert a.layout.dumps() == b.layout.dumps()
+    assert a.blocks == scene.required_blocks and a.valid, a.summary()
+
+
 def test_scene_root_is_available():
     assert (ROOT / "tests" / "data" / "tiny.toml").is_file()
