@@ -320,6 +320,7 @@ def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path):
     long = tmp_path / "long.toml"
     long.write_text(text.replace("length_m = 12.220833333333333", "length_m = 2000.0"))
     scene = load_scene(long)
+    assert scene.required_blocks > 10_000  # the edit took: not mini's 75
     t0 = time.monotonic()
     r = optimize(scene, seed=1, time_limit=4.0)
     assert time.monotonic() - t0 < 4.0 + 3.0
