@@ -17,6 +17,13 @@ machine and code as everything else:
   orientations, and the largest ``f`` of a block resting there with its
   centroid at a given distance from the axis. The design prism reaches
   further out than any tetrapod can;
+* where the volume outside the prism goes: for each layout, the volume
+  past the crest, past the slopes and past the ends, against the most the
+  required count may lose and still come within 1 point of the target;
+* with ``--heights``, the design height: the same pipeline (seed 1) on
+  copies of the scene 3.75 m and 4 m high. A taller mound takes the second
+  layer under its crest, but its slopes then hold fewer blocks than it
+  requires. ``make bench`` leaves this out for time (about 200 s);
 * the second layer: random drops, in each hanging with a random yaw and in
   free orientation, onto a patch of the tuned first layer (the crown/level
   lattice the optimizer lays on the foundation), as the crane lowers them.
@@ -25,25 +32,29 @@ machine and code as everything else:
   where only the crest plane cuts it).
 
 Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
+``results/tetrapod_height.csv`` (the taller copies, with ``--heights``),
 ``results/tetrapod_toe.csv`` (the toe) and ``results/tetrapod_nest.csv``
 (the second layer).
 
 Run::
 
-    .venv/bin/python benchmarks/tetrapod_limit.py
+    .venv/bin/python benchmarks/tetrapod_limit.py [--heights]
 """
 
 from __future__ import annotations
 
+import sys
 import time
+from importlib import resources
 
 import numpy as np
 from common import Run
 
 from geometry.clip import volumes_inside
+from geometry.polytope import ConvexPolytope
 from geometry.pose import Pose
 from geometry.samples import random_quaternion
-from geometry.scene import load_scene
+from geometry.scene import load_scene, parse_scene
 from optimizer.api import optimize
 from optimizer.drop import Shape
 from optimizer.hangings import FAMILIES, hanging
@@ -56,12 +67,55 @@ ON_GROUND = 0.05
 TOE_SAMPLES = 20000
 TOE_DISTANCES = (4.0, 4.2, 4.4, 4.6, 4.8)
 NEST_SAMPLES = 1500
+#: Design heights (m) of the taller copies of the scene, run with seed 1.
+HEIGHTS = (3.75, 4.0)
+#: Faces of the design prism by outward normal: the volume past each group is a loss.
+FACES = {"crest": lambda n: n[2] > 0.9, "ends": lambda n: abs(n[1]) > 0.9,
+         "slopes": lambda n: abs(n[0]) > 0.1 and abs(n[2]) < 0.9}
 
 
 def inside_share_needed(scene, within: float = 1.0) -> float:
     """Least inside share ``f`` for the required count to land within ``within`` points of target."""
     filled = (1 - (scene.target_porosity + within) / 100) * scene.design_volume
     return filled / (scene.required_blocks * scene.block.volume)
+
+
+def face_losses(scene, placed, inside: np.ndarray) -> dict:
+    """Volume (m^3) of the blocks past each group of the design prism's faces.
+
+    The volume inside the prism with that group's planes removed, less the
+    volume inside the prism. Volume past two groups at once (beyond an edge
+    of the prism) counts in neither: ``edges_loss_m3`` is the total outside
+    less the three groups. ``loss_allowed_m3`` is the most the required
+    count may have outside and still come within 1 point of the target.
+    """
+    prism = scene.design.polytope
+    centre = prism.vertices.mean(axis=0)
+    span = 10.0 * float(np.ptp(prism.vertices, axis=0).max())
+    box_n, box_o = np.vstack([np.eye(3), -np.eye(3)]), np.concatenate([centre + span, span - centre])
+    out = {}
+    for name, in_group in FACES.items():
+        keep = [i for i, n in enumerate(prism.normals) if not in_group(n)]
+        if len(keep) == len(prism.normals):
+            raise ValueError(f"no {name} face on the design prism")
+        opened = ConvexPolytope.from_halfspaces(np.vstack([prism.normals[keep], box_n]),
+                                                np.concatenate([prism.offsets[keep], box_o]), centre)
+        out[f"{name}_loss_m3"] = round(float((volumes_inside(placed, opened) - inside).sum()), 3)
+    total = len(placed) * scene.block.volume - float(inside.sum())
+    out["edges_loss_m3"] = round(total - sum(out.values()), 3)
+    out["total_loss_m3"] = round(total, 3)
+    allowed = scene.required_blocks * scene.block.volume * (1 - inside_share_needed(scene))
+    out["loss_allowed_m3"] = round(float(allowed), 3)
+    return out
+
+
+def taller(scene_text: str, height: float):
+    """The built-in ``tetrapod`` scene, ``height`` metres high; its required count follows."""
+    old = "height_m = 3.5\n"
+    if old not in scene_text:
+        raise ValueError("tetrapod.toml: no 'height_m = 3.5' line to change")
+    return parse_scene(scene_text.replace(old, f"height_m = {height}\n").replace(
+        'name = "tetrapod"', f'name = "tetrapod-{height}m"'), f"tetrapod, {height} m high", None)
 
 
 def run_row(scene, seed: int) -> dict:
@@ -85,6 +139,7 @@ def run_row(scene, seed: int) -> dict:
     projected = 100 * (1 - scene.required_blocks * block.volume * f / scene.design_volume)
     return {
         "seed": seed,
+        "height_m": scene.height,
         "required_blocks": scene.required_blocks,
         "blocks": r.blocks,
         "porosity_percent": round(r.porosity_percent, 3),
@@ -101,6 +156,7 @@ def run_row(scene, seed: int) -> dict:
         "porosity_at_required_count_percent": round(projected, 2),
         "inside_share_needed_percent": round(100 * inside_share_needed(scene), 2),
         "upper_inside_share_needed_percent": round(100 * float(rest_needed), 2),
+        **face_losses(scene, placed, inside),
     }
 
 
@@ -173,6 +229,13 @@ def main() -> None:
         rows.append(run_row(scene, seed))
         print(rows[-1], flush=True)
     run.csv("tetrapod_limit", rows)
+    if "--heights" in sys.argv[1:]:
+        text = (resources.files("geometry") / "scenes" / "tetrapod.toml").read_text()
+        tall = [rows[0]]
+        for h in HEIGHTS:
+            tall.append(run_row(taller(text, h), 1))
+            print(tall[-1], flush=True)
+        run.csv("tetrapod_height", tall)
     toe = toe_rows(scene)
     for r in toe:
         print(r)
