@@ -97,13 +97,14 @@ class BeamSearch(Strategy):
         ``RANK_SECONDS``; fewer for larger scenes (``* 100 / required``) and
         shorter budgets (``* budget / RANK_SECONDS``), at least 4. The count
         follows from the scene and the time limit, not from the machine's
-        speed, so that a seed gives one layout. The ranking stops at 60 % of
+        speed, so that a seed gives one layout. The ranking stops at 70 % of
         the beam's time (15 % under a budget short of ``RANK_SECONDS``), so
         that a slow machine keeps time for the search; only then does the
         machine's speed change the layout. On 2 cores ``tetrapod``'s 50
-        trials take 24 to 33 s of the beam's 89 s at the default 120 s limit;
-        a 40 % cap (36 s) cut them (48 in one run), and runs of one seed gave
-        different layouts.
+        trials take 24 to 44 s of the beam's 82 s at the default 120 s limit
+        (the same machine on different days); a 40 % cap cut them (48 in one
+        run), and runs of one seed gave different layouts. At 70 % (57 s) the
+        first search, 17 s, still fits after the slowest ranking seen.
     patience : int
         Fruitless rounds of fill drops before a partial layout is finished.
     accept : callable, optional
@@ -114,8 +115,16 @@ class BeamSearch(Strategy):
         Pattern origin; by default several are ranked by a quick pass of the
         pattern's sites alone, and the search restarts from the best ones.
     restarts : int
-        Searches from the best-ranked origins, for scenes of up to 100
-        blocks; fewer for larger scenes (``restarts * 100 / required``).
+        Most searches from the best-ranked origins, for scenes of up to 100
+        blocks; fewer for larger scenes (``restarts * 100 / required``). The
+        next origin is searched only while no search has placed the required
+        count in a layout that stands (``judge``). Running every restart made
+        the work outgrow the default limit on a slow day: on 2 cores on
+        2026-11-23 ``mini``'s four took until 79 s of the beam's 82 s and
+        ``tetrapod``'s were cut at the third, so the deadline, that is the
+        machine's speed, picked the layout. Later restarts had changed
+        porosity by 0.02 points at most (``mini`` seed 1: 56.517 % against
+        56.539 % for the first).
     share : float
         Fraction of the time left that the beam may use.
     judge : callable, optional
@@ -221,18 +230,19 @@ class BeamSearch(Strategy):
             budget = end - t0
             n = max(4, round(self.scan_origins * min(1.0, 100 / max(problem.required, 1))
                              * min(1.0, budget / RANK_SECONDS)))
-            cap = t0 + (0.6 if budget >= RANK_SECONDS else 0.15) * budget
+            cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n)
         best: tuple | None = None
+        best_done = False  # the best holds the required count and stands
         tried = 0
         runs = 0
         # Restarts pay off where the pattern's origin decides much (a short scene's ends);
         # a long scene gets fewer, fixed by its size so a seed does the same work anywhere.
         restarts = max(1, min(self.restarts, round(self.restarts * 100 / max(problem.required, 1))))
         for n, origin in enumerate(origins[:restarts]):
-            # A fixed number of restarts: the same seed does the same work on any machine,
-            # and only a deadline that binds cuts it short.
-            if n and time.monotonic() > end:
+            # Restarts follow from results, not from the clock: the same seed does the same
+            # work on any machine, and only a deadline that binds cuts it short.
+            if n and (time.monotonic() > end or best_done):
                 break
             result, count = self._search(problem, start, origin, shapes, rng, end)
             tried += count
@@ -241,6 +251,7 @@ class BeamSearch(Strategy):
             key = (-len(result), not stands, abs(result.porosity.percent - problem.target), n)
             if best is None or key < best[0]:
                 best = (key, result, origin)
+            best_done = len(best[1]) >= problem.required and not best[0][1]
             problem.tell(self.name, best[1], f"restart {n + 1}: {len(result)} placed")
         assert best is not None
         _, result, origin = best

@@ -281,6 +281,17 @@ def _light(seed_scene, seed, seconds=120):
                     strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
 
 
+@pytest.mark.parametrize("stands, searches", [(True, 1), (False, 3)])
+def test_beam_restarts_only_until_a_full_layout_stands(tiny, stands, searches):
+    """The next origin is searched only while no full layout stands: results, not the clock,
+    decide how much work a seed does. The judge is the beam's input here, not under test."""
+    pr = replace(problem(tiny), required=5)
+    beam = BeamSearch(restarts=3, origins=3, judge=lambda p, b: stands)
+    build = beam.run(pr, None, np.random.default_rng(1))
+    assert len(build) == 5
+    assert beam.stats()["restarts"] == searches
+
+
 def test_same_seed_same_layout_different_seed_different(tiny):
     a = _light(tiny, 1).layout.dumps()
     b = _light(tiny, 1).layout.dumps()
