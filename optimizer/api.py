@@ -140,7 +140,8 @@ def optimize(
     scene : Scene
     seed : int
         All randomness comes from ``numpy.random.default_rng(seed)``; the same
-        seed gives the same layout, byte for byte.
+        seed gives the same layout, byte for byte, as long as ``time_limit``
+        does not cut the strategies' fixed work short.
     time_limit : float, seconds
         Wall-clock budget for the search; the best valid layout found so far
         is returned when it runs out.
