@@ -122,9 +122,10 @@ class BeamSearch(Strategy):
         the work outgrow the default limit on a slow day: on 2 cores on
         2026-11-23 ``mini``'s four took until 79 s of the beam's 82 s and
         ``tetrapod``'s were cut at the third, so the deadline, that is the
-        machine's speed, picked the layout. Later restarts had changed
-        porosity by 0.02 points at most (``mini`` seed 1: 56.517 % against
-        56.539 % for the first).
+        machine's speed, picked the layout. What the later restarts bought
+        was small where measured: 0.02 points on ``mini`` seed 1 (56.517 %
+        after the fourth, 56.539 % after the first), none on ``tetrapod``
+        seed 2 (its first two gave 53.1816 %).
     share : float
         Fraction of the time left that the beam may use.
     judge : callable, optional
