@@ -234,7 +234,6 @@ class BeamSearch(Strategy):
             cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n)
         best: tuple | None = None
-        best_done = False  # the best holds the required count and stands
         tried = 0
         runs = 0
         # Restarts pay off where the pattern's origin decides much (a short scene's ends);
@@ -243,7 +242,8 @@ class BeamSearch(Strategy):
         for n, origin in enumerate(origins[:restarts]):
             # Restarts follow from results, not from the clock: the same seed does the same
             # work on any machine, and only a deadline that binds cuts it short.
-            if n and (time.monotonic() > end or best_done):
+            # best[0] starts (-count, not stands): a full layout that stands ends the restarts.
+            if n and (time.monotonic() > end or best[0][:2] <= (-problem.required, False)):
                 break
             result, count = self._search(problem, start, origin, shapes, rng, end)
             tried += count
@@ -252,7 +252,6 @@ class BeamSearch(Strategy):
             key = (-len(result), not stands, abs(result.porosity.percent - problem.target), n)
             if best is None or key < best[0]:
                 best = (key, result, origin)
-            best_done = len(best[1]) >= problem.required and not best[0][1]
             problem.tell(self.name, best[1], f"restart {n + 1}: {len(result)} placed")
         assert best is not None
         _, result, origin = best
