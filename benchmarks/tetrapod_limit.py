@@ -20,10 +20,17 @@ machine and code as everything else:
 * where the volume outside the prism goes: for each layout, the volume
   past the crest, past the slopes and past the ends, against the most the
   required count may lose and still come within 1 point of the target;
-* with ``--heights``, the design height: the same pipeline (seed 1) on
-  copies of the scene 3.75 m and 4 m high. A taller mound takes the second
-  layer under its crest, but its slopes then hold fewer blocks than it
-  requires. ``make bench`` leaves this out for time (about 200 s);
+* where the blocks' volume is inside the prism: the solid share of the
+  prism in bands of ``|x|`` (distance from the axis) and height, for seed 1
+  (the shared module's voxel grid, 5 cm voxels). The toe and the wedge
+  under the slopes above the first layer hold little; the interior makes up
+  for them only in part;
+* with ``--variants``, the design: the same pipeline (seed 1) on copies of
+  the scene 3.75 m and 4 m high, and 4 m high with a wider crest. A taller
+  mound takes the second layer under its crest, but its slopes then hold
+  fewer blocks than it requires, and a wider crest adds about as many
+  blocks as it requires. ``make bench`` leaves this out for time (about
+  450 s);
 * the second layer: random drops, in each hanging with a random yaw and in
   free orientation, onto a patch of the tuned first layer (the crown/level
   lattice the optimizer lays on the foundation), as the crane lowers them.
@@ -32,13 +39,14 @@ machine and code as everything else:
   where only the crest plane cuts it).
 
 Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
-``results/tetrapod_height.csv`` (the taller copies, with ``--heights``),
+``results/tetrapod_solid.csv`` (the solid share by band),
+``results/tetrapod_variants.csv`` (the copies, with ``--variants``),
 ``results/tetrapod_toe.csv`` (the toe) and ``results/tetrapod_nest.csv``
 (the second layer).
 
 Run::
 
-    .venv/bin/python benchmarks/tetrapod_limit.py [--heights]
+    .venv/bin/python benchmarks/tetrapod_limit.py [--variants]
 """
 
 from __future__ import annotations
@@ -52,6 +60,7 @@ from common import Run
 
 from geometry.clip import volumes_inside
 from geometry.polytope import ConvexPolytope
+from geometry.porosity import VoxelGrid
 from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene, parse_scene
@@ -67,8 +76,12 @@ ON_GROUND = 0.05
 TOE_SAMPLES = 20000
 TOE_DISTANCES = (4.0, 4.2, 4.4, 4.6, 4.8)
 NEST_SAMPLES = 1500
-#: Design heights (m) of the taller copies of the scene, run with seed 1.
-HEIGHTS = (3.75, 4.0)
+#: Copies of the scene run with seed 1 (``--variants``): design height and
+#: crest width, m (None keeps the built-in crest).
+VARIANTS = ((3.75, None), (4.0, None), (4.0, 6.0), (4.0, 8.0))
+#: Bands of the solid-share map (m), and its voxel edge (m).
+BAND = 1.0
+VOXEL = 0.05
 #: Faces of the design prism by outward normal: the volume past each group is a loss.
 FACES = {"crest": lambda n: n[2] > 0.9, "ends": lambda n: abs(n[1]) > 0.9,
          "slopes": lambda n: abs(n[0]) > 0.1 and abs(n[2]) < 0.9}
@@ -109,16 +122,50 @@ def face_losses(scene, placed, inside: np.ndarray) -> dict:
     return out
 
 
-def taller(scene_text: str, height: float):
-    """The built-in ``tetrapod`` scene, ``height`` metres high; its required count follows."""
-    old = "height_m = 3.5\n"
-    if old not in scene_text:
-        raise ValueError("tetrapod.toml: no 'height_m = 3.5' line to change")
-    return parse_scene(scene_text.replace(old, f"height_m = {height}\n").replace(
-        'name = "tetrapod"', f'name = "tetrapod-{height}m"'), f"tetrapod, {height} m high", None)
+def variant(scene_text: str, height: float, crest: float | None = None):
+    """The built-in ``tetrapod`` scene, ``height`` m high and ``crest`` m wide; its required count follows."""
+    edits = {"height_m = 3.5\n": f"height_m = {height}\n"}
+    name = f"tetrapod-{height}m"
+    if crest is not None:
+        edits["crest_width_m = 4.0\n"] = f"crest_width_m = {crest}\n"
+        name += f"-crest-{crest}m"
+    for old, new in edits.items():
+        if old not in scene_text:
+            raise ValueError(f"tetrapod.toml: no {old.strip()!r} line to change")
+        scene_text = scene_text.replace(old, new)
+    return parse_scene(scene_text.replace('name = "tetrapod"', f'name = "{name}"'), name, None)
 
 
-def run_row(scene, seed: int) -> dict:
+def solid_rows(scene, placed) -> list[dict]:
+    """Share of the design prism that the blocks fill, in bands of ``|x|`` and height.
+
+    On the shared porosity module's voxel grid (voxel centres in the prism,
+    ``VOXEL`` edges); both sides of the axis fall in one band.
+    """
+    grid = VoxelGrid.for_scene(scene, "voxel", voxel_size=VOXEL)
+    solid = np.zeros(grid.shape, bool)
+    for _, block, pose in placed:
+        cells = grid.block_cells(block, pose)
+        if cells is not None:
+            solid[cells[0]] |= cells[1]
+    solid &= grid.prism_mask
+    bx = np.floor(np.abs(grid.centres[0]) / BAND).astype(int)
+    bz = np.floor(grid.centres[2] / BAND).astype(int)
+    prism_count = np.zeros((bx.max() + 1, bz.max() + 1))
+    solid_count = np.zeros_like(prism_count)
+    # Sum over y, then into the bands along x and z.
+    np.add.at(prism_count, (bx[:, None], bz[None, :]), grid.prism_mask.sum(axis=1))
+    np.add.at(solid_count, (bx[:, None], bz[None, :]), solid.sum(axis=1))
+    rows = []
+    for i, k in zip(*np.nonzero(prism_count), strict=True):
+        rows.append({"scene": scene.name, "abs_x_from_m": i * BAND, "z_from_m": k * BAND,
+                     "prism_m3": round(float(prism_count[i, k]) * grid.voxel_volume, 3),
+                     "solid_percent": round(100 * float(solid_count[i, k] / prism_count[i, k]), 1)})
+    return rows
+
+
+def run_row(scene, seed: int) -> tuple[dict, list]:
+    """One ``optimize`` run: its row, and the blocks it placed."""
     t0 = time.perf_counter()
     r = optimize(scene, seed=seed, time_limit=LIMIT)
     wall = time.perf_counter() - t0
@@ -140,6 +187,7 @@ def run_row(scene, seed: int) -> dict:
     return {
         "seed": seed,
         "height_m": scene.height,
+        "crest_width_m": scene.crest_width,
         "required_blocks": scene.required_blocks,
         "blocks": r.blocks,
         "porosity_percent": round(r.porosity_percent, 3),
@@ -157,7 +205,7 @@ def run_row(scene, seed: int) -> dict:
         "inside_share_needed_percent": round(100 * inside_share_needed(scene), 2),
         "upper_inside_share_needed_percent": round(100 * float(rest_needed), 2),
         **face_losses(scene, placed, inside),
-    }
+    }, placed
 
 
 def toe_rows(scene) -> list[dict]:
@@ -223,19 +271,27 @@ def nest_rows(scene) -> list[dict]:
 def main() -> None:
     scene = load_scene("tetrapod")
     run = Run("tetrapod_limit", {"scene": scene.name, "seeds": list(SEEDS), "time_limit_s": LIMIT,
-                                 "on_ground_m": ON_GROUND, "toe_samples": TOE_SAMPLES})
-    rows = []
+                                 "on_ground_m": ON_GROUND, "toe_samples": TOE_SAMPLES,
+                                 "band_m": BAND, "voxel_m": VOXEL})
+    rows, first = [], None
     for seed in SEEDS:
-        rows.append(run_row(scene, seed))
-        print(rows[-1], flush=True)
+        row, placed = run_row(scene, seed)
+        rows.append(row)
+        first = first or placed
+        print(row, flush=True)
     run.csv("tetrapod_limit", rows)
-    if "--heights" in sys.argv[1:]:
+    solid = solid_rows(scene, first)
+    if "--variants" in sys.argv[1:]:
         text = (resources.files("geometry") / "scenes" / "tetrapod.toml").read_text()
-        tall = [rows[0]]
-        for h in HEIGHTS:
-            tall.append(run_row(taller(text, h), 1))
-            print(tall[-1], flush=True)
-        run.csv("tetrapod_height", tall)
+        copies = [rows[0]]
+        for height, crest in VARIANTS:
+            row, placed = run_row(variant(text, height, crest), 1)
+            copies.append(row)
+            print(row, flush=True)
+            if (height, crest) == (4.0, None):
+                solid += solid_rows(variant(text, height, crest), placed)
+        run.csv("tetrapod_variants", copies)
+    run.csv("tetrapod_solid", solid)
     toe = toe_rows(scene)
     for r in toe:
         print(r)
