@@ -39,6 +39,7 @@ recomputing the others; the optimizer lives on it.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -257,16 +258,28 @@ class VoxelGrid:
         with np.errstate(invalid="ignore"):
             k0 = np.ceil((lo - oz) / dz - 0.5 - tol.distance)
             k1 = np.floor((hi - oz) / dz - 0.5 + tol.distance)
-        k0 = np.clip(np.nan_to_num(k0, nan=nz, posinf=nz, neginf=0), 0, nz).astype(np.int64)
-        k1 = np.clip(np.nan_to_num(k1, nan=-1, posinf=nz - 1, neginf=-1), -1, nz - 1).astype(np.int64)
-        return k0, k1
+        # Clipping maps -inf and +inf to the grid's ends; a NaN bound (a column no
+        # plane bounds sensibly) leaves its column empty. The NaN check is one pass,
+        # and the repair runs only where there is one.
+        bad = np.isnan(k0) | np.isnan(k1)
+        np.clip(k0, 0, nz, out=k0)
+        np.clip(k1, -1, nz - 1, out=k1)
+        if bad.any():
+            k0[bad], k1[bad] = nz, -1
+        return k0.astype(np.int64), k1.astype(np.int64)
 
     def _index_range(self, axis: int, lo: float, hi: float) -> tuple[int, int]:
-        """Half-open index range of voxels whose centres lie in ``[lo, hi]`` on an axis."""
-        o, d, n = self.origin[axis], self.size[axis], self.shape[axis]
-        i0 = int(np.clip(np.ceil((lo - o) / d - 0.5), 0, n))
-        i1 = int(np.clip(np.floor((hi - o) / d - 0.5) + 1, 0, n))
-        return i0, i1
+        """Half-open index range of voxels whose centres lie in ``[lo, hi]`` on an axis.
+
+        Plain floats, not NumPy scalars: this runs for every piece of every
+        block a tracker moves. A range off the grid (or NaN) is ``(n, 0)``,
+        empty and neutral when ranges are merged by min and max.
+        """
+        o, d, n = float(self.origin[axis]), float(self.size[axis]), self.shape[axis]
+        a, b = (lo - o) / d - 0.5, (hi - o) / d - 0.5
+        if not (a <= n and b >= -1.0):
+            return n, 0
+        return max(math.ceil(max(a, -1.0)), 0), min(math.floor(min(b, float(n))) + 1, n)
 
     def block_cells(self, block: Block, pose: Pose) -> tuple[tuple[slice, slice, slice], np.ndarray] | None:
         """The voxels a posed block occupies under this grid's rule.
@@ -283,7 +296,7 @@ class VoxelGrid:
             pieces = [p.minkowski_box(self.size / 2) for p in pieces]
         ranges = []
         for p in pieces:
-            lo, hi = p.aabb
+            lo, hi = p.vertices.min(axis=0).tolist(), p.vertices.max(axis=0).tolist()
             ranges.append([self._index_range(a, lo[a], hi[a]) for a in range(3)])
         r = np.array(ranges)  # (pieces, 3, 2)
         b0, b1 = r[:, :, 0].min(axis=0), r[:, :, 1].max(axis=0)
@@ -295,9 +308,9 @@ class VoxelGrid:
             (i0, i1), (j0, j1), _ = pr
             if i1 <= i0 or j1 <= j0:
                 continue
-            ii, jj = np.meshgrid(np.arange(i0, i1), np.arange(j0, j1), indexing="ij")
-            ii, jj = ii.ravel(), jj.ravel()
-            xy = np.stack([self.centres[0][ii], self.centres[1][jj]], axis=1)
+            ii = np.repeat(np.arange(i0, i1), j1 - j0)
+            jj = np.tile(np.arange(j0, j1), i1 - i0)
+            xy = np.column_stack([self.centres[0][ii], self.centres[1][jj]])
             lo, hi = column_intervals(p.normals, p.offsets, xy)
             k0, k1 = self._k_range(lo, hi)
             hit = k1 >= k0
