@@ -121,10 +121,57 @@ class ConvexPolytope:
 
         An axis-aligned box centred at ``c`` touches this polytope exactly when
         ``c`` lies in the sum; the ``voxel-any`` porosity rule relies on it.
+        Built by qhull, about 0.8 ms a piece: the voxel grid takes the same set's
+        planes from :meth:`box_sum_planes` instead, and the tests hold the two
+        together.
         """
         corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)])
         pts = (self.vertices[:, None, :] + corners[None] * np.asarray(half)).reshape(-1, 3)
         return ConvexPolytope.from_points(pts)
+
+    @cached_property
+    def edge_face_normals(self) -> np.ndarray:
+        """(e, 2, 3) float: unit normals of the two triangles that meet at each hull edge."""
+        tri = self.vertices[self.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        e = np.concatenate([self.faces[:, [0, 1]], self.faces[:, [1, 2]], self.faces[:, [2, 0]]])
+        owner = np.tile(np.arange(len(self.faces)), 3)
+        key = np.sort(e, axis=1)
+        order = np.lexsort((key[:, 1], key[:, 0]))
+        # A closed triangulated surface has each edge twice: consecutive after sorting.
+        k = key[order]
+        if len(k) % 2 or not (k[0::2] == k[1::2]).all():
+            raise ValueError("hull surface is not closed: an edge does not join two triangles")
+        return n[owner[order].reshape(-1, 2)]
+
+    def box_sum_planes(self, half: np.ndarray, rotation: np.ndarray | None = None,
+                       translation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Half-spaces of the Minkowski sum with the axis-aligned box ``[-half, half]``.
+
+        The polytope is first moved by ``p -> rotation @ p + translation``. The
+        same set as :meth:`minkowski_box`, without a hull: the sum's facet
+        normals are this polytope's, the box's six, and, for each edge whose
+        two faces lie on either side of a box axis ``a`` (the edge is on the
+        silhouette seen along ``a``), the normal between them perpendicular to
+        ``a``. Each plane sits at the sum's support along its normal. Normals
+        that are not facets would only repeat a bound, so none are pruned.
+        """
+        half = np.asarray(half, dtype=float)
+        rot = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
+        t = np.zeros(3) if translation is None else np.asarray(translation, dtype=float)
+        pair = self.edge_face_normals @ rot.T  # (e, 2, 3)
+        n1, n2 = pair[:, 0], pair[:, 1]
+        # For edge e and axis a (n1[e, a] and n2[e, a] of opposite signs), the
+        # combination n2[e, a] n1[e] - n1[e, a] n2[e], perpendicular to a, turned
+        # to a positive combination of the two faces' normals.
+        e, a = np.nonzero(n1 * n2 < 0)
+        s1, s2 = n1[e, a][:, None], n2[e, a][:, None]
+        m = (s2 * n1[e] - s1 * n2[e]) * np.sign(s2)
+        m /= np.sqrt(np.einsum("ij,ij->i", m, m))[:, None]
+        n = np.concatenate([self.normals @ rot.T, np.eye(3), -np.eye(3), m])
+        support = (self.vertices @ rot.T @ n.T).max(axis=0) + n @ t
+        return n, support + np.abs(n) @ half
 
     def eroded_box_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Half-spaces of the set of centres whose box ``[-half, half]`` fits inside.

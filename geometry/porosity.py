@@ -291,27 +291,35 @@ class VoxelGrid:
             neighbourhood; None if the block misses the grid.
         """
         rotation, t = pose.rotation, pose.position
-        pieces = [p.transformed(rotation, t) for p in block.pieces]
-        if self.rule == "any":
-            pieces = [p.minkowski_box(self.size / 2) for p in pieces]
-        ranges = []
-        for p in pieces:
-            lo, hi = p.vertices.min(axis=0).tolist(), p.vertices.max(axis=0).tolist()
-            ranges.append([self._index_range(a, lo[a], hi[a]) for a in range(3)])
+        # Each piece as (planes, bounding box): under the "any" rule, the piece's
+        # Minkowski sum with a voxel (the centres of the voxels that touch it).
+        pieces = []
+        for p in block.pieces:
+            world = p.vertices @ rotation.T + t
+            lo, hi = world.min(axis=0), world.max(axis=0)
+            if self.rule == "any":
+                half = self.size / 2
+                normals, offsets = p.box_sum_planes(half, rotation, t)
+                lo, hi = lo - half, hi + half
+            else:
+                normals = p.normals @ rotation.T
+                offsets = p.offsets + normals @ t
+            pieces.append((normals, offsets, lo.tolist(), hi.tolist()))
+        ranges = [[self._index_range(a, lo[a], hi[a]) for a in range(3)] for _, _, lo, hi in pieces]
         r = np.array(ranges)  # (pieces, 3, 2)
         b0, b1 = r[:, :, 0].min(axis=0), r[:, :, 1].max(axis=0)
         if np.any(b1 <= b0):
             return None
         nk = b1[2] - b0[2]
         diff = np.zeros((b1[0] - b0[0], b1[1] - b0[1], nk + 1), dtype=np.int16)
-        for p, pr in zip(pieces, r, strict=True):
+        for (normals, offsets, _, _), pr in zip(pieces, r, strict=True):
             (i0, i1), (j0, j1), _ = pr
             if i1 <= i0 or j1 <= j0:
                 continue
             ii = np.repeat(np.arange(i0, i1), j1 - j0)
             jj = np.tile(np.arange(j0, j1), i1 - i0)
             xy = np.column_stack([self.centres[0][ii], self.centres[1][jj]])
-            lo, hi = column_intervals(p.normals, p.offsets, xy)
+            lo, hi = column_intervals(normals, offsets, xy)
             k0, k1 = self._k_range(lo, hi)
             hit = k1 >= k0
             ii, jj, k0, k1 = ii[hit] - b0[0], jj[hit] - b0[1], k0[hit] - b0[2], k1[hit] - b0[2]

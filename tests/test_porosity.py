@@ -154,6 +154,28 @@ def test_voxel_any_matches_brute_force_box_overlap(mini, shake):
     assert full.sum() > 100
 
 
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod"])
+def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
+    """The voxel-any rule's planes, built without a hull, cut out the same set as
+    the qhull hull of every vertex plus every box corner, at random poses and boxes."""
+    from geometry.blocks import get_block
+
+    block = get_block(name)
+    rng = np.random.default_rng(3)
+    for _ in range(10):
+        pose = Pose(rng.uniform(-3, 3, 3), random_quaternion(rng))
+        half = rng.uniform(0.01, 0.3, 3)
+        for piece in block.pieces:
+            hull = piece.transformed(pose.rotation, pose.position).minkowski_box(half)
+            normals, offsets = piece.box_sum_planes(half, pose.rotation, pose.position)
+            lo, hi = hull.aabb
+            points = rng.uniform(lo - 0.3, hi + 0.3, (3000, 3))
+            expected = hull.contains(points, margin=0.0)
+            assert expected.sum() > 100 and (~expected).sum() > 100
+            got = np.all(points @ normals.T <= offsets, axis=1)
+            assert np.array_equal(got, expected)
+
+
 def test_voxel_centres_match_point_in_mesh(mini, shake):
     pose = Pose([-1.0, 7.3, 1.0], axis_angle_quat([0.2, 1, 0.1], 2.1))
     grid = VoxelGrid.for_scene(mini, "voxel", divisions=60)
