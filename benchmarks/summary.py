@@ -176,17 +176,54 @@ def tetrapod_limit() -> list[str]:
                   for r in rows("tetrapod_limit")])
 
 
+def _loss(value: str) -> str:
+    """A lost volume (m^3) as written: rounding can leave -0 where nothing is lost."""
+    return f"{max(0.0, float(value)):.3f}".rstrip("0").rstrip(".")
+
+
 def tetrapod_losses() -> list[str]:
-    return table("Where the tetrapods' outside volume is (`tetrapod_limit.csv`, `tetrapod_height.csv`)",
-                 "design height (m) | seed | required | placed | porosity (%) | past the crest (m^3) | "
-                 "past the slopes (m^3) | past the ends (m^3) | past two at once (m^3) | total (m^3) | "
-                 "most the required count may lose (m^3)",
-                 [[r["height_m"], r["seed"], r["required_blocks"], r["blocks"],
-                   f"{float(r['porosity_percent']):.2f}", r["crest_loss_m3"], r["slopes_loss_m3"],
-                   r["ends_loss_m3"], r["edges_loss_m3"], r["total_loss_m3"], r["loss_allowed_m3"]]
-                  for r in rows("tetrapod_limit") + rows("tetrapod_height")[1:]],
-                 "The last rows are copies of the scene with a taller design height, seed 1; the "
-                 "first row of `tetrapod_height.csv` is seed 1 of the built-in scene.")
+    return table("Where the tetrapods' outside volume is (`tetrapod_limit.csv`, `tetrapod_variants.csv`)",
+                 "design height (m) | crest width (m) | seed | required | placed | porosity (%) | "
+                 "past the crest (m^3) | past the slopes (m^3) | past the ends (m^3) | "
+                 "past two at once (m^3) | total (m^3) | most the required count may lose (m^3)",
+                 [[r["height_m"], r.get("crest_width_m", ""), r["seed"], r["required_blocks"], r["blocks"],
+                   f"{float(r['porosity_percent']):.2f}",
+                   *(_loss(r[f"{k}_loss_m3"]) for k in ("crest", "slopes", "ends", "edges", "total")),
+                   r["loss_allowed_m3"]]
+                  for r in rows("tetrapod_limit") + rows("tetrapod_variants")[1:]],
+                 "The last rows are copies of the scene with another design, seed 1; the "
+                 "first row of `tetrapod_variants.csv` is seed 1 of the built-in scene.")
+
+
+def _solid_grid(scene: str) -> tuple[list[float], list[float], dict[tuple[float, float], dict]]:
+    """Bands of ``tetrapod_solid.csv`` for one scene: |x| edges, z edges, rows by (x, z)."""
+    cells = {(float(r["abs_x_from_m"]), float(r["z_from_m"])): r
+             for r in rows("tetrapod_solid") if r["scene"] == scene}
+    return sorted({x for x, _ in cells}), sorted({z for _, z in cells}), cells
+
+
+def _solid_share(cells: list[dict]) -> float:
+    """Solid share (%) of the prism volume in ``cells``."""
+    volume = sum(float(c["prism_m3"]) for c in cells)
+    return 100 * sum(float(c["prism_m3"]) * float(c["solid_percent"]) / 100 for c in cells) / volume
+
+
+def tetrapod_solid() -> list[str]:
+    out: list[str] = []
+    band = float((meta("tetrapod_limit") or {}).get("params", {}).get("band_m", 1.0))
+    for scene in dict.fromkeys(r["scene"] for r in rows("tetrapod_solid")):
+        xs, zs, cells = _solid_grid(scene)
+        body = [[f"{z:g} to {z + band:g}"] + [cells[(x, z)]["solid_percent"] if (x, z) in cells else ""
+                                               for x in xs] for z in reversed(zs)]
+        body.append(["all heights"] + [f"{_solid_share([c for (cx, _), c in cells.items() if cx == x]):.1f}"
+                                       for x in xs])
+        out += table(f"How full the `{scene}` prism is, seed 1 (`tetrapod_solid.csv`)",
+                     "<height (m) / distance from the axis (m) | "
+                     + " | ".join(f"{x:g} to {x + band:g}" for x in xs),
+                     body, "Each cell: the share (%) of the design prism in that band that the blocks fill, "
+                     "both sides of the axis together; the target's 50 % porosity asks for 50 % "
+                     "on average.") + [""]
+    return out[:-1]
 
 
 def tetrapod_toe() -> list[str]:
@@ -218,7 +255,7 @@ def main() -> None:
               "median of repeated calls on the machine named at the foot."]]
     parts += [porosity_speed(), paper(), accuracy(), collision(), scaling(), settle_speed(), score_speed(),
               batch_cluster(), optimizer_quality(), optimizer_scaling(), tetrapod_limit(), tetrapod_losses(),
-              tetrapod_toe(), tetrapod_nest(), run_times()]
+              tetrapod_solid(), tetrapod_toe(), tetrapod_nest(), run_times()]
     text = "\n\n".join("\n".join(p) for p in parts if p)
     m = meta("run_all") or meta("porosity_speed")
     if m:
@@ -398,19 +435,28 @@ def tetrapod_block() -> list[str]:
                    f"({best['family']} hanging; 99th percentile over all hangings {p99:.1f} %), "
                    f"while with the blocks on the foundation as laid, the blocks on them would need "
                    f"{each('upper_inside_share_needed_percent', 1)} % on average.")
-    tall = rows("tetrapod_height")
+    tall = rows("tetrapod_variants")
     if "crest_loss_m3" in r0:
         out.append(f"  Of the {float(r0['total_loss_m3']):.1f} m³ of seed {r0['seed']}'s blocks outside the "
                    f"design prism, {float(r0['crest_loss_m3']):.1f} m³ is above the crest, and the "
                    f"{r0['required_blocks']} blocks may lose at most {float(r0['loss_allowed_m3']):.1f} m³.")
-    if len(tall) > 1 and all("crest_loss_m3" in r for r in tall):
-        parts = [f"{float(r['height_m']):g} m: {r['blocks']} of {r['required_blocks']} placed, "
-                 f"{float(r['porosity_percent']):.1f} %, {float(r['crest_loss_m3']):.1f} m³ above the crest"
-                 for r in tall[1:]]
-        out.append("  A taller mound does not help: the same pipeline (seed 1) on copies of the scene "
-                   "with a taller design height gives " + "; ".join(parts) + ". The second layer "
-                   "then fits under the crest, but the slopes hold fewer blocks than the taller "
-                   "mound requires.")
+    if len(tall) > 1 and all("crest_width_m" in r for r in tall):
+        parts = [f"{float(r['height_m']):g} m high and {float(r['crest_width_m']):g} m wide: "
+                 f"{r['blocks']} of {r['required_blocks']} placed, {float(r['porosity_percent']):.1f} %, "
+                 f"{max(0.0, float(r['crest_loss_m3'])):.1f} m³ above the crest" for r in tall[1:]]
+        out.append("  Another design does not help: the same pipeline (seed 1) on copies of the scene "
+                   "gives " + "; ".join(parts) + ". A 4 m mound takes the second layer under its crest, "
+                   "and the blocks placed lose less volume than the required count may: what is missing "
+                   "is the count. Its slopes hold fewer blocks than it requires, and a wider crest adds "
+                   "about as many blocks as it requires.")
+    xs, _, cells = _solid_grid("tetrapod")
+    if cells:
+        shares = [_solid_share([c for (cx, _), c in cells.items() if cx == x]) for x in xs]
+        band = xs[1] - xs[0] if len(xs) > 1 else 1.0
+        out.append(f"  Seed 1's blocks fill {', '.join(f'{v:.0f}' for v in shares)} % of the `tetrapod` "
+                   f"prism in {band:g} m bands from the axis outwards, against 50 % on average for the "
+                   "target: the interior is denser than that, the toes far emptier (the prism "
+                   "there is lower than a block is tall; how far out a block reaches is below).")
     if near:
         t = near[0]
         samples = (meta("tetrapod_toe") or {}).get("params", {}).get("toe_samples", "many")

@@ -113,9 +113,10 @@ def face_losses(scene, placed, inside: np.ndarray) -> dict:
             raise ValueError(f"no {name} face on the design prism")
         opened = ConvexPolytope.from_halfspaces(np.vstack([prism.normals[keep], box_n]),
                                                 np.concatenate([prism.offsets[keep], box_o]), centre)
-        out[f"{name}_loss_m3"] = round(float((volumes_inside(placed, opened) - inside).sum()), 3)
+        # "+ 0.0" turns a rounded -0.0 (a loss of nothing, less rounding) into 0.0.
+        out[f"{name}_loss_m3"] = round(float((volumes_inside(placed, opened) - inside).sum()), 3) + 0.0
     total = len(placed) * scene.block.volume - float(inside.sum())
-    out["edges_loss_m3"] = round(total - sum(out.values()), 3)
+    out["edges_loss_m3"] = round(total - sum(out.values()), 3) + 0.0
     out["total_loss_m3"] = round(total, 3)
     allowed = scene.required_blocks * scene.block.volume * (1 - inside_share_needed(scene))
     out["loss_allowed_m3"] = round(float(allowed), 3)
