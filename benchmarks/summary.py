@@ -453,10 +453,14 @@ def tetrapod_block() -> list[str]:
     if cells:
         shares = [_solid_share([c for (cx, _), c in cells.items() if cx == x]) for x in xs]
         band = xs[1] - xs[0] if len(xs) > 1 else 1.0
-        out.append(f"  Seed 1's blocks fill {', '.join(f'{v:.0f}' for v in shares)} % of the `tetrapod` "
-                   f"prism in {band:g} m bands from the axis outwards, against 50 % on average for the "
-                   "target: the interior is denser than that, the toes far emptier (the prism "
-                   "there is lower than a block is tall; how far out a block reaches is below).")
+        empty = next((x for x, v in zip(xs, shares, strict=True) if v < 1.0), None)
+        line = (f"  Seed 1's blocks fill {', '.join(f'{v:.0f}' for v in shares)} % of the `tetrapod` prism "
+                f"in {band:g} m bands from the axis outwards, where the target asks for 50 % on average")
+        if empty is not None and toe:
+            base = float(toe[0]["design_base_half_width_m"])
+            line += (f": no block fills any of it beyond {empty:g} m from the axis, though the design "
+                     f"prism's base runs to {base:.2f} m (the toes, below)")
+        out.append(line + ".")
     if near:
         t = near[0]
         samples = (meta("tetrapod_toe") or {}).get("params", {}).get("toe_samples", "many")
