@@ -195,10 +195,15 @@ def tetrapod_losses() -> list[str]:
                  "first row of `tetrapod_variants.csv` is seed 1 of the built-in scene.")
 
 
+def _solid_rows() -> list[dict[str, str]]:
+    """The fill maps: the built-in scene's, then the copies' (``--variants``)."""
+    return rows("tetrapod_solid") + rows("tetrapod_variants_solid")
+
+
 def _solid_grid(scene: str) -> tuple[list[float], list[float], dict[tuple[float, float], dict]]:
     """Bands of ``tetrapod_solid.csv`` for one scene: |x| edges, z edges, rows by (x, z)."""
     cells = {(float(r["abs_x_from_m"]), float(r["z_from_m"])): r
-             for r in rows("tetrapod_solid") if r["scene"] == scene}
+             for r in _solid_rows() if r["scene"] == scene}
     return sorted({x for x, _ in cells}), sorted({z for _, z in cells}), cells
 
 
@@ -211,13 +216,14 @@ def _solid_share(cells: list[dict]) -> float:
 def tetrapod_solid() -> list[str]:
     out: list[str] = []
     band = float((meta("tetrapod_limit") or {}).get("params", {}).get("band_m", 1.0))
-    for scene in dict.fromkeys(r["scene"] for r in rows("tetrapod_solid")):
+    for scene in dict.fromkeys(r["scene"] for r in _solid_rows()):
         xs, zs, cells = _solid_grid(scene)
         body = [[f"{z:g} to {z + band:g}"] + [cells[(x, z)]["solid_percent"] if (x, z) in cells else ""
                                                for x in xs] for z in reversed(zs)]
         body.append(["all heights"] + [f"{_solid_share([c for (cx, _), c in cells.items() if cx == x]):.1f}"
                                        for x in xs])
-        out += table(f"How full the `{scene}` prism is, seed 1 (`tetrapod_solid.csv`)",
+        out += table(f"How full the `{scene}` prism is, seed 1 (`tetrapod_solid.csv`, "
+                     "`tetrapod_variants_solid.csv`)",
                      "<height (m) / distance from the axis (m) | "
                      + " | ".join(f"{x:g} to {x + band:g}" for x in xs),
                      body, "Each cell: the share (%) of the design prism in that band that the blocks fill, "

@@ -40,7 +40,8 @@ machine and code as everything else:
 
 Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
 ``results/tetrapod_solid.csv`` (the solid share by band),
-``results/tetrapod_variants.csv`` (the copies, with ``--variants``),
+``results/tetrapod_variants.csv`` and ``results/tetrapod_variants_solid.csv``
+(the copies and the 4 m copy's map, with ``--variants``),
 ``results/tetrapod_toe.csv`` (the toe) and ``results/tetrapod_nest.csv``
 (the second layer).
 
@@ -60,7 +61,7 @@ from common import Run
 
 from geometry.clip import volumes_inside
 from geometry.polytope import ConvexPolytope
-from geometry.porosity import VoxelGrid
+from geometry.porosity import PorosityTracker
 from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene, parse_scene
@@ -140,16 +141,14 @@ def variant(scene_text: str, height: float, crest: float | None = None):
 def solid_rows(scene, placed) -> list[dict]:
     """Share of the design prism that the blocks fill, in bands of ``|x|`` and height.
 
-    On the shared porosity module's voxel grid (voxel centres in the prism,
-    ``VOXEL`` edges); both sides of the axis fall in one band.
+    The shared porosity module's voxel tracker holds the layout (voxel
+    centres in the prism, ``VOXEL`` edges); both sides of the axis fall in
+    one band.
     """
-    grid = VoxelGrid.for_scene(scene, "voxel", voxel_size=VOXEL)
-    solid = np.zeros(grid.shape, bool)
-    for _, block, pose in placed:
-        cells = grid.block_cells(block, pose)
-        if cells is not None:
-            solid[cells[0]] |= cells[1]
-    solid &= grid.prism_mask
+    tracker = PorosityTracker(scene, "voxel", voxel_size=VOXEL)
+    for key, block, pose in placed:
+        tracker.add(key, block, pose)
+    grid, solid = tracker.grid, tracker.occupied()
     bx = np.floor(np.abs(grid.centres[0]) / BAND).astype(int)
     bz = np.floor(grid.centres[2] / BAND).astype(int)
     prism_count = np.zeros((bx.max() + 1, bz.max() + 1))
@@ -281,18 +280,18 @@ def main() -> None:
         first = first or placed
         print(row, flush=True)
     run.csv("tetrapod_limit", rows)
-    solid = solid_rows(scene, first)
+    run.csv("tetrapod_solid", solid_rows(scene, first))
     if "--variants" in sys.argv[1:]:
         text = (resources.files("geometry") / "scenes" / "tetrapod.toml").read_text()
-        copies = [rows[0]]
+        copies, solid = [rows[0]], []
         for height, crest in VARIANTS:
             row, placed = run_row(variant(text, height, crest), 1)
             copies.append(row)
             print(row, flush=True)
             if (height, crest) == (4.0, None):
-                solid += solid_rows(variant(text, height, crest), placed)
+                solid = solid_rows(variant(text, height, crest), placed)
         run.csv("tetrapod_variants", copies)
-    run.csv("tetrapod_solid", solid)
+        run.csv("tetrapod_variants_solid", solid)
     toe = toe_rows(scene)
     for r in toe:
         print(r)

@@ -145,22 +145,22 @@ class ConvexPolytope:
             raise ValueError("hull surface is not closed: an edge does not join two triangles")
         return n[owner[order].reshape(-1, 2)]
 
-    def box_sum_planes(self, half: np.ndarray, rotation: np.ndarray | None = None,
-                       translation: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def box_sum_planes(self, half: np.ndarray,
+                       edge_normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Half-spaces of the Minkowski sum with the axis-aligned box ``[-half, half]``.
 
-        The polytope is first moved by ``p -> rotation @ p + translation``. The
-        same set as :meth:`minkowski_box`, without a hull: the sum's facet
+        The same set as :meth:`minkowski_box`, without a hull: the sum's facet
         normals are this polytope's, the box's six, and, for each edge whose
         two faces lie on either side of a box axis ``a`` (the edge is on the
         silhouette seen along ``a``), the normal between them perpendicular to
         ``a``. Each plane sits at the sum's support along its normal. Normals
         that are not facets would only repeat a bound, so none are pruned.
+
+        ``edge_normals`` is :attr:`edge_face_normals`, when the caller has it:
+        a moved copy of a block's piece passes its original's, rotated, rather
+        than pairing up its edges again on every move.
         """
-        half = np.asarray(half, dtype=float)
-        rot = np.eye(3) if rotation is None else np.asarray(rotation, dtype=float)
-        t = np.zeros(3) if translation is None else np.asarray(translation, dtype=float)
-        pair = self.edge_face_normals @ rot.T  # (e, 2, 3)
+        pair = self.edge_face_normals if edge_normals is None else edge_normals  # (e, 2, 3)
         n1, n2 = pair[:, 0], pair[:, 1]
         # For edge e and axis a (n1[e, a] and n2[e, a] of opposite signs), the
         # combination n2[e, a] n1[e] - n1[e, a] n2[e], perpendicular to a, turned
@@ -169,9 +169,9 @@ class ConvexPolytope:
         s1, s2 = n1[e, a][:, None], n2[e, a][:, None]
         m = (s2 * n1[e] - s1 * n2[e]) * np.sign(s2)
         m /= np.sqrt(np.einsum("ij,ij->i", m, m))[:, None]
-        n = np.concatenate([self.normals @ rot.T, np.eye(3), -np.eye(3), m])
-        support = (self.vertices @ rot.T @ n.T).max(axis=0) + n @ t
-        return n, support + np.abs(n) @ half
+        n = np.concatenate([self.normals, np.eye(3), -np.eye(3), m])
+        support = (self.vertices @ n.T).max(axis=0)
+        return n, support + np.abs(n) @ np.asarray(half, dtype=float)
 
     def eroded_box_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Half-spaces of the set of centres whose box ``[-half, half]`` fits inside.

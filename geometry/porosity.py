@@ -295,15 +295,14 @@ class VoxelGrid:
         # Minkowski sum with a voxel (the centres of the voxels that touch it).
         pieces = []
         for p in block.pieces:
-            world = p.vertices @ rotation.T + t
-            lo, hi = world.min(axis=0), world.max(axis=0)
+            moved = p.transformed(rotation, t)
+            lo, hi = moved.vertices.min(axis=0), moved.vertices.max(axis=0)
             if self.rule == "any":
                 half = self.size / 2
-                normals, offsets = p.box_sum_planes(half, rotation, t)
+                normals, offsets = moved.box_sum_planes(half, p.edge_face_normals @ rotation.T)
                 lo, hi = lo - half, hi + half
             else:
-                normals = p.normals @ rotation.T
-                offsets = p.offsets + normals @ t
+                normals, offsets = moved.normals, moved.offsets
             pieces.append((normals, offsets, lo.tolist(), hi.tolist()))
         ranges = [[self._index_range(a, lo[a], hi[a]) for a in range(3)] for _, _, lo, hi in pieces]
         r = np.array(ranges)  # (pieces, 3, 2)
@@ -435,6 +434,12 @@ class PorosityTracker:
 
     def pose(self, key: int) -> Pose:
         return self._blocks[key][1]
+
+    def occupied(self) -> np.ndarray:
+        """Voxel methods: the prism's voxels that some block fills, a bool array over ``grid``."""
+        if self.grid is None:
+            raise NotImplementedError("the exact method keeps no voxels; use a voxel method")
+        return (self._count > 0) & self.grid.prism_mask
 
     def contribution(self, key: int) -> float:
         """What a tracked block adds to ``filled`` now (exact method: its clipped volume, m^3)."""

@@ -166,8 +166,12 @@ def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
         pose = Pose(rng.uniform(-3, 3, 3), random_quaternion(rng))
         half = rng.uniform(0.01, 0.3, 3)
         for piece in block.pieces:
-            hull = piece.transformed(pose.rotation, pose.position).minkowski_box(half)
-            normals, offsets = piece.box_sum_planes(half, pose.rotation, pose.position)
+            moved = piece.transformed(pose.rotation, pose.position)
+            hull = moved.minkowski_box(half)
+            # As the voxel grid calls it (the piece's edge normals, rotated), and on its own.
+            normals, offsets = moved.box_sum_planes(half, piece.edge_face_normals @ pose.rotation.T)
+            own_normals, own_offsets = moved.box_sum_planes(half)
+            assert np.allclose(normals, own_normals) and np.allclose(offsets, own_offsets)
             lo, hi = hull.aabb
             points = rng.uniform(lo - 0.3, hi + 0.3, (3000, 3))
             expected = hull.contains(points, margin=0.0)
@@ -236,6 +240,19 @@ def test_tracker_equals_full_recompute(mini, shake, inside25, method, divisions)
             assert tracker.filled == pytest.approx(filled, abs=1e-9)
         else:
             assert tracker.percent == pytest.approx(full.percent, abs=1e-12)
+
+
+def test_tracker_occupied_voxels_are_what_it_counts_as_filled(mini, inside25):
+    """The occupancy a voxel tracker exposes is the set its porosity counts, after removals too."""
+    tracker = PorosityTracker(mini, "voxel", divisions=50)
+    for k, b, p in inside25[:12]:
+        tracker.add(k, b, p)
+    tracker.remove(inside25[3][0])
+    occupied = tracker.occupied()
+    assert occupied.shape == tracker.grid.shape and not (occupied & ~tracker.grid.prism_mask).any()
+    assert occupied.sum() == tracker.filled > 0
+    with pytest.raises(NotImplementedError):
+        PorosityTracker(mini, "exact").occupied()
 
 
 def test_tracker_gain_does_not_change_state(mini, shake, inside25):
