@@ -67,9 +67,11 @@ class OptimizeResult:
         Per strategy: name, seconds, blocks and porosity after it, and its stats.
     gap : dict
         The CP-SAT bound beside the heuristic's result, where CP-SAT ran.
-    outside_volume_m3 : float
+    outside_design_prism_m3 : float
         Block volume outside the design prism (in the tolerance zone, where
         the layout is valid): what porosity loses to blocks that stick out.
+        Not ``shoha check``'s ``outside_volume_m3``, which is a block's volume
+        outside the tolerance zone.
     """
 
     layout: Layout
@@ -84,7 +86,7 @@ class OptimizeResult:
     settle: dict[str, Any] = field(default_factory=dict)
     phases: list[dict[str, Any]] = field(default_factory=list)
     gap: dict[str, Any] = field(default_factory=dict)
-    outside_volume_m3: float = 0.0
+    outside_design_prism_m3: float = 0.0
     path: str | None = None
 
     @property
@@ -106,9 +108,9 @@ class OptimizeResult:
         off = self.porosity_percent - self.target_porosity_percent
         if self.blocks >= self.required_blocks and abs(off) > TARGET_POINTS:
             text += (f"\nporosity is {abs(off):.2f} points {'above' if off > 0 else 'below'} the target")
-            if off > 0 and self.outside_volume_m3 > 0:
-                text += (f": {self.outside_volume_m3:.1f} m³ of the blocks lies outside the design prism, "
-                         "in the tolerance zone")
+            if off > 0 and self.outside_design_prism_m3 > 0:
+                text += (f": {self.outside_design_prism_m3:.1f} m³ of the blocks lies outside the design "
+                         "prism, in the tolerance zone")
         return text
 
     def to_dict(self) -> dict[str, Any]:
@@ -123,7 +125,7 @@ class OptimizeResult:
             "seconds": self.seconds,
             "path": self.path,
             "valid": self.valid,
-            "outside_volume_m3": self.outside_volume_m3,
+            "outside_design_prism_m3": self.outside_design_prism_m3,
             "settle": self.settle,
             "phases": self.phases,
             "gap": self.gap,
@@ -225,6 +227,6 @@ def optimize(
         settle=settle_info,
         phases=phases,
         gap=gap,
-        outside_volume_m3=max(0.0, report_.blocks * scene.block.volume
+        outside_design_prism_m3=max(0.0, report_.blocks * scene.block.volume
                               - (1 - report_.porosity_percent / 100) * scene.design_volume),
     )

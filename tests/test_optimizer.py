@@ -317,8 +317,8 @@ def test_optimize_result_is_valid_on_tiny(tiny):
     assert r.gap["gap_percent"] >= 0.0 and r.gap["bound_m3"] >= r.gap["heuristic_m3"] - 1e-5
     # What the blocks lose outside the design prism, against each block clipped on its own.
     inside = volumes_inside(r.layout.placed(), tiny.design.polytope).sum()
-    assert r.outside_volume_m3 == pytest.approx(r.blocks * tiny.block.volume - inside, abs=1e-4)
-    assert r.outside_volume_m3 > 0.1  # a slice's blocks stick out at its ends and slopes
+    assert r.outside_design_prism_m3 == pytest.approx(r.blocks * tiny.block.volume - inside, abs=1e-4)
+    assert r.outside_design_prism_m3 > 0.1  # a slice's blocks stick out at its ends and slopes
 
 
 def test_summary_says_when_porosity_misses_the_target():
@@ -327,7 +327,7 @@ def test_summary_says_when_porosity_misses_the_target():
 
     full = OptimizeResult(layout=None, porosity_percent=53.18, blocks=81, required_blocks=81,
                           target_porosity_percent=50.0, collisions=0, out_of_tolerance=0, stable=True,
-                          seconds=49.0, outside_volume_m3=12.82)
+                          seconds=49.0, outside_design_prism_m3=12.82)
     assert full.summary().endswith("\nporosity is 3.18 points above the target: 12.8 m³ of the blocks "
                                    "lies outside the design prism, in the tolerance zone")
     assert "points" not in replace(full, porosity_percent=50.9).summary()
@@ -370,7 +370,7 @@ def test_cli_optimize_writes_the_contract_keys(tmp_path):
     assert set(d) >= {"porosity_percent", "blocks", "collisions", "out_of_tolerance", "stable", "seconds",
                       "path"}
     assert d["path"] == str(out) and out.exists()
-    assert isinstance(d["outside_volume_m3"], float) and d["outside_volume_m3"] >= 0.0
+    assert isinstance(d["outside_design_prism_m3"], float) and d["outside_design_prism_m3"] >= 0.0
     written = json.loads(out.read_text())
     assert written["format"] == "shoha-layout/1"
     # The scene is a file here: the layout names it relative to itself, and it resolves.
