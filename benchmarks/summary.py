@@ -207,23 +207,31 @@ def _solid_grid(scene: str) -> tuple[list[float], list[float], dict[tuple[float,
     return sorted({x for x, _ in cells}), sorted({z for _, z in cells}), cells
 
 
-def _solid_share(cells: list[dict]) -> float:
-    """Solid share (%) of the prism volume in ``cells``."""
-    volume = sum(float(c["prism_m3"]) for c in cells)
-    return 100 * sum(float(c["prism_m3"]) * float(c["solid_percent"]) / 100 for c in cells) / volume
+def _band_shares(xs: list[float], cells: dict[tuple[float, float], dict]) -> list[float]:
+    """Solid share (%) of the prism in each band of distance from the axis, all heights together."""
+    out = []
+    for x in xs:
+        column = [c for (cx, _), c in cells.items() if cx == x]
+        volume = sum(float(c["prism_m3"]) for c in column)
+        out.append(100 * sum(float(c["prism_m3"]) * float(c["solid_percent"]) / 100 for c in column) / volume)
+    return out
+
+
+def _band() -> float:
+    """Width (m) of the fill maps' bands."""
+    return float((meta("tetrapod_limit") or {}).get("params", {}).get("band_m", 1.0))
 
 
 def tetrapod_solid() -> list[str]:
     out: list[str] = []
-    band = float((meta("tetrapod_limit") or {}).get("params", {}).get("band_m", 1.0))
+    band = _band()
     for scene in dict.fromkeys(r["scene"] for r in _solid_rows()):
         xs, zs, cells = _solid_grid(scene)
         body = [[f"{z:g} to {z + band:g}"] + [cells[(x, z)]["solid_percent"] if (x, z) in cells else ""
                                                for x in xs] for z in reversed(zs)]
-        body.append(["all heights"] + [f"{_solid_share([c for (cx, _), c in cells.items() if cx == x]):.1f}"
-                                       for x in xs])
-        out += table(f"How full the `{scene}` prism is, seed 1 (`tetrapod_solid.csv`, "
-                     "`tetrapod_variants_solid.csv`)",
+        body.append(["all heights"] + [f"{v:.1f}" for v in _band_shares(xs, cells)])
+        source = "tetrapod_solid" if scene == "tetrapod" else "tetrapod_variants_solid"
+        out += table(f"How full the `{scene}` prism is, seed 1 (`{source}.csv`)",
                      "<height (m) / distance from the axis (m) | "
                      + " | ".join(f"{x:g} to {x + band:g}" for x in xs),
                      body, "Each cell: the share (%) of the design prism in that band that the blocks fill, "
@@ -457,8 +465,8 @@ def tetrapod_block() -> list[str]:
                    "about as many blocks as it requires.")
     xs, _, cells = _solid_grid("tetrapod")
     if cells:
-        shares = [_solid_share([c for (cx, _), c in cells.items() if cx == x]) for x in xs]
-        band = xs[1] - xs[0] if len(xs) > 1 else 1.0
+        shares = _band_shares(xs, cells)
+        band = _band()
         empty = next((x for x, v in zip(xs, shares, strict=True) if v < 1.0), None)
         line = (f"  Seed 1's blocks fill {', '.join(f'{v:.0f}' for v in shares)} % of the `tetrapod` prism "
                 f"in {band:g} m bands from the axis outwards, where the target asks for 50 % on average")
