@@ -195,6 +195,20 @@ def tetrapod_losses() -> list[str]:
                  "first row of `tetrapod_variants.csv` is seed 1 of the built-in scene.")
 
 
+def _taller(copies: list[dict[str, str]]) -> str:
+    """A sentence on the tallest copy, if it is taller than 4 m: how short of its count it falls."""
+    four = [r for r in copies if float(r["height_m"]) == 4.0]
+    tall = max(copies, key=lambda r: float(r["height_m"]))
+    if not four or float(tall["height_m"]) <= 4.0:
+        return ""
+    short = int(tall["required_blocks"]) - int(tall["blocks"])
+    worst = max(int(r["required_blocks"]) - int(r["blocks"]) for r in four)
+    verdict = "further short than" if short > worst else "no further short than"
+    return (f" A {float(tall['height_m']):g} m mound, where the pattern lays more layers on the first two, "
+            f"places {tall['blocks']} of its {tall['required_blocks']}: {short} short, {verdict} the 4 m "
+            f"copies ({worst} at most).")
+
+
 def _solid_rows() -> list[dict[str, str]]:
     """The fill maps: the built-in scene's, then the copies' (``--variants``)."""
     return rows("tetrapod_solid") + rows("tetrapod_variants_solid")
@@ -458,11 +472,17 @@ def tetrapod_block() -> list[str]:
         parts = [f"{float(r['height_m']):g} m high and {float(r['crest_width_m']):g} m wide: "
                  f"{r['blocks']} of {r['required_blocks']} placed, {float(r['porosity_percent']):.1f} %, "
                  f"{max(0.0, float(r['crest_loss_m3'])):.1f} m³ above the crest" for r in tall[1:]]
-        out.append("  Another design does not help: the same pipeline (seed 1) on copies of the scene "
-                   "gives " + "; ".join(parts) + ". A 4 m mound takes the second layer under its crest, "
-                   "and the blocks placed lose less volume than the required count may: what is missing "
-                   "is the count. Its slopes hold fewer blocks than it requires, and a wider crest adds "
-                   "about as many blocks as it requires.")
+        line = ("  Another design does not help: the same pipeline (seed 1) on copies of the scene "
+                "gives " + "; ".join(parts) + ". A 4 m mound takes the second layer under its crest, "
+                "and the blocks placed lose less volume than the required count may: what is missing "
+                "is the count. Its slopes hold fewer blocks than it requires, and a wider crest adds "
+                "about as many blocks as it requires.")
+        line += _taller(tall[1:])
+        if all("time_limit_s" in r for r in tall[1:]):
+            limits = ", ".join(f"{float(r['time_limit_s']):g}" for r in tall[1:])
+            line += (" Each copy's time limit is the built-in scene's scaled by its required count "
+                     f"({limits} s).")
+        out.append(line)
     xs, _, cells = _solid_grid("tetrapod")
     if cells:
         shares = _band_shares(xs, cells)
