@@ -294,11 +294,11 @@ class VoxelGrid:
         # Each piece as (planes, bounding box): under the "any" rule, the piece's
         # Minkowski sum with a voxel (the centres of the voxels that touch it).
         pieces = []
+        half = self.size / 2
         for p in block.pieces:
             moved = p.transformed(rotation, t)
             lo, hi = moved.vertices.min(axis=0), moved.vertices.max(axis=0)
             if self.rule == "any":
-                half = self.size / 2
                 normals, offsets = moved.box_sum_planes(half, p.edge_face_normals @ rotation.T)
                 lo, hi = lo - half, hi + half
             else:
