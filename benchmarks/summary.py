@@ -272,6 +272,32 @@ def tetrapod_nest() -> list[str]:
                   for r in rows("tetrapod_nest")])
 
 
+def tetrapod_release() -> list[str]:
+    def dash(r: dict[str, str], key: str) -> str:
+        return r[key] or "-"
+
+    out = table("Crane drops released and settled (`tetrapod_release.csv`)",
+                "<where | x from the axis (m) | drops | lowest top at first contact (m) | "
+                "at rest and valid | lowest top (m) | median top (m) | design crest (m) | "
+                "inside share: median, best (%)",
+                [[r["place"], f"{r['x_from_m']} to {r['x_to_m']}", r["drops"],
+                  r["first_contact_lowest_top_m"], r["at_rest_valid"], dash(r, "lowest_top_m"),
+                  dash(r, "median_top_m"), r["design_crest_m"],
+                  f"{dash(r, 'median_inside_share_percent')}, {dash(r, 'best_inside_share_percent')}"]
+                 for r in rows("tetrapod_release")])
+    greedy = table("A second layer of released drops (`tetrapod_release_greedy.csv`)",
+                   "blocks on the foundation | released drops per block | placed / required | "
+                   "porosity (%) | upper blocks inside (%) | <settled whole",
+                   [[g["ground_blocks"], g["candidates_per_block"], f"{g['blocks']} / {g['required_blocks']}",
+                     g["porosity_percent"], g["upper_inside_share_percent"], _stable(g)]
+                    for g in rows("tetrapod_release_greedy")])
+    return out + [""] + greedy if out and greedy else out or greedy
+
+
+def _stable(row: dict[str, str]) -> str:
+    return "stable" if row["stable"] == "True" else "not stable"
+
+
 def run_times() -> list[str]:
     return table("`make bench` wall time (`run_all.csv`)", "<script | wall (s) | exit",
                  [[r["script"], f"{float(r['wall_s']):.1f}", r["exit_status"]] for r in rows("run_all")])
@@ -283,7 +309,7 @@ def main() -> None:
               "median of repeated calls on the machine named at the foot."]]
     parts += [porosity_speed(), paper(), accuracy(), collision(), scaling(), settle_speed(), score_speed(),
               batch_cluster(), optimizer_quality(), optimizer_scaling(), tetrapod_limit(), tetrapod_losses(),
-              tetrapod_solid(), tetrapod_toe(), tetrapod_nest(), run_times()]
+              tetrapod_solid(), tetrapod_toe(), tetrapod_nest(), tetrapod_release(), run_times()]
     text = "\n\n".join("\n".join(p) for p in parts if p)
     m = meta("run_all") or meta("porosity_speed")
     if m:
@@ -463,6 +489,28 @@ def tetrapod_block() -> list[str]:
                    f"({best['family']} hanging; 99th percentile over all hangings {p99:.1f} %), "
                    f"while with the blocks on the foundation as laid, the blocks on them would need "
                    f"{each('upper_inside_share_needed_percent', 1)} % on average.")
+    release = {r["place"]: r for r in rows("tetrapod_release")}
+    if "crest" in release and "toes" in release:
+        c, t = release["crest"], release["toes"]
+        seconds = float(c["seconds_simulated"])
+        out.append(f"  Settling after release does not close the gap. The same kind of drops, released and "
+                   f"settled for {seconds:g} s with only the dropped block free (MuJoCo): over the crest, "
+                   f"onto seed 1's blocks on the foundation, {c['at_rest_valid']} of {c['drops']} come to "
+                   f"rest valid, the lowest with its top at {float(c['lowest_top_m']):.2f} m "
+                   f"(at first contact {float(c['first_contact_lowest_top_m']):.2f} m), and at most "
+                   f"{float(c['best_inside_share_percent']):.1f} % inside (median "
+                   f"{float(c['median_inside_share_percent']):.1f} %); at the toes, "
+                   f"{float(t['x_from_m']):g} to {float(t['x_to_m']):g} m from the axis, onto seed 1's "
+                   f"whole layout, {t['at_rest_valid']} of {t['drops']} come to rest inside the "
+                   "tolerance zone.")
+    greedy = rows("tetrapod_release_greedy")
+    if greedy:
+        g = greedy[0]
+        out[-1] += (f" A second layer of such blocks, each the one of {g['candidates_per_block']} released "
+                    f"drops with the most volume inside, on seed 1's {g['ground_blocks']} blocks on the "
+                    f"foundation, places {g['blocks']} of {g['required_blocks']} at "
+                    f"{float(g['porosity_percent']):.1f} % ({_stable(g)} when settled whole): "
+                    "fewer than the pattern's second layer.")
     tall = rows("tetrapod_variants")
     if "crest_loss_m3" in r0:
         out.append(f"  Of the {float(r0['total_loss_m3']):.1f} m³ of seed {r0['seed']}'s blocks outside the "

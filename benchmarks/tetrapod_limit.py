@@ -32,20 +32,30 @@ machine and code as everything else:
   than it requires, and a wider crest adds about as many blocks as it
   requires; the 6 m mound, with layers laid on the first two, falls
   further short. ``make bench`` leaves this out for time (about 15
-  minutes more: 1037 s with it, 173 s without);
+  minutes more: the copies took 864 s of a 1037 s run);
 * the second layer: random drops, in each hanging with a random yaw and in
   free orientation, onto a patch of the tuned first layer (the crown/level
   lattice the optimizer lays on the foundation), as the crane lowers them.
   For each family, the lowest top reached, and the largest share of such a
   block under the design crest (the block moved to the middle of the crest,
-  where only the crest plane cuts it).
+  where only the crest plane cuts it);
+* the same crane drops released: each is lowered until it first touches,
+  then MuJoCo settles it for a few seconds with only it free and the blocks
+  under it held fixed, as a block slides into a pocket after the crane lets
+  go. Over the crest onto seed 1's blocks on the foundation, and at the toes
+  onto seed 1's whole layout: how many come to rest inside the tolerance
+  zone, penetrating nothing, how low their tops end, and how much of them is
+  inside the design prism where they rest; and a second layer of such
+  blocks on seed 1's blocks on the foundation, each the released drop of
+  ``GREEDY_CANDIDATES`` with the most volume inside, settled whole at the end.
 
 Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
 ``results/tetrapod_solid.csv`` (the solid share by band),
 ``results/tetrapod_variants.csv`` and ``results/tetrapod_variants_solid.csv``
 (the copies and the 4 m copy's map, with ``--variants``),
-``results/tetrapod_toe.csv`` (the toe) and ``results/tetrapod_nest.csv``
-(the second layer).
+``results/tetrapod_toe.csv`` (the toe), ``results/tetrapod_nest.csv``
+(the second layer), ``results/tetrapod_release.csv`` (the drops released)
+and ``results/tetrapod_release_greedy.csv`` (the second layer they make).
 
 Run::
 
@@ -61,16 +71,19 @@ from importlib import resources
 import numpy as np
 from common import Run
 
-from geometry.clip import volumes_inside
+from geometry.clip import volume_inside, volumes_inside
+from geometry.collision import world_of
+from geometry.constants import tol
 from geometry.polytope import ConvexPolytope
 from geometry.porosity import PorosityTracker
 from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene, parse_scene
 from optimizer.api import optimize
-from optimizer.drop import Shape
+from optimizer.drop import DropWorld, Shape
 from optimizer.hangings import FAMILIES, hanging
 from optimizer.patterns import first_layer, lattice_for
+from settle import settle
 
 SEEDS = (1, 2, 3)
 LIMIT = 120.0
@@ -79,6 +92,14 @@ ON_GROUND = 0.05
 TOE_SAMPLES = 20000
 TOE_DISTANCES = (4.0, 4.2, 4.4, 4.6, 4.8)
 NEST_SAMPLES = 1500
+#: Released drops per place (``release_rows``), and the simulated seconds each settles.
+RELEASE_SAMPLES = 400
+RELEASE_SECONDS = 3.0
+#: Where released drops fall, as ranges of x (m) on either side of the axis:
+#: over the crest, and at the toes.
+RELEASE_PLACES = {"crest": (0.0, 1.5), "toes": (3.6, 5.4)}
+#: Released drops tried for each block of the greedy second layer.
+GREEDY_CANDIDATES = 100
 #: Copies of the scene run with seed 1 (``--variants``): design height and
 #: crest width, m (None keeps the built-in crest). Each copy's time limit is
 #: ``LIMIT`` scaled by its required count over the built-in scene's, so that
@@ -273,11 +294,133 @@ def nest_rows(scene) -> list[dict]:
     return rows
 
 
+class Release:
+    """Crane drops onto fixed blocks, released and settled with only the dropped block free.
+
+    Each drop is lowered until it first touches, as the optimizer lowers it,
+    then settled for ``RELEASE_SECONDS`` with its neighbours held fixed. It
+    counts when it comes to rest inside the tolerance zone and penetrates no
+    block by more than ``tol.contact_depth``. Blocks that count can be kept
+    (:meth:`keep`) for later drops to land on.
+    """
+
+    def __init__(self, scene, placed):
+        self.scene, self.block = scene, scene.block
+        self.zone = scene.tolerance.polytope
+        self.drops = DropWorld(scene.foundation, cell=2.0 * self.block.bounding_radius)
+        for key, _, pose in placed:
+            self.drops.add(key, Shape.of(self.block, pose.quaternion), pose.position)
+        self.world = world_of(placed)
+
+    def drop(self, q: np.ndarray, x: float, y: float) -> tuple[float, Pose | None]:
+        """The top at first contact (m), and the pose it rests in, or None if it does not count."""
+        block, shape = self.block, Shape.of(self.block, q)
+        z, _, _ = self.drops.drop(shape, x, y)
+        pose = Pose(np.array([x, y, z]), q)
+        near = self.world.neighbours(pose.position, 2.5 * block.bounding_radius)
+        result = settle(self.scene, [(k, block, self.world.pose(k)) for k in near] + [(-1, block, pose)],
+                        seconds=RELEASE_SECONDS, seed=0, movable={-1})
+        rest = result.poses[-1]
+        valid = (result.at_rest and self.zone.contains(rest.apply(block.vertices)).all()
+                 and not self.world.query(block, rest, threshold=tol.contact_depth, first=True))
+        return z + float(shape.highs.max()), rest if valid else None
+
+    def keep(self, key: int, pose: Pose) -> None:
+        self.drops.add(key, Shape.of(self.block, pose.quaternion), pose.position)
+        self.world.add(key, self.block, pose)
+
+
+def random_hanging(rng: np.random.Generator, i: int) -> np.ndarray:
+    """The ``i``-th drop's orientation: each hanging in turn with a random yaw, then a free one."""
+    family = (*FAMILIES, "free")[i % (len(FAMILIES) + 1)]
+    return random_quaternion(rng) if family == "free" else hanging(family, float(rng.uniform(0, 2 * np.pi)))
+
+
+def on_ground(scene, placed) -> list:
+    return [b for b in placed if b[2].apply(scene.block.vertices)[:, 2].min() <= ON_GROUND]
+
+
+def release_rows(scene, placed) -> list[dict]:
+    """Does a released tetrapod nest lower than where it first touches, and can it rest at the toes?
+
+    Over the crest the drops fall onto ``placed``'s blocks on the foundation;
+    at the toes, onto all of ``placed`` (see :class:`Release`).
+    """
+    block = scene.block
+    rng = np.random.default_rng(0)
+    rows = []
+    for place, (lo, hi) in RELEASE_PLACES.items():
+        release = Release(scene, on_ground(scene, placed) if place == "crest" else placed)
+        first_tops, tops, inside = [], [], []
+        for i in range(RELEASE_SAMPLES):
+            q = random_hanging(rng, i)
+            x = float(rng.choice([-1.0, 1.0]) * rng.uniform(lo, hi))
+            first, rest = release.drop(q, x, float(rng.uniform(1.0, scene.length - 1.0)))
+            first_tops.append(first)
+            if rest is not None:
+                tops.append(float(rest.apply(block.vertices)[:, 2].max()))
+                inside.append(volume_inside(block, rest, scene.design.polytope) / block.volume)
+
+        def stat(values: list[float], f, scale: float = 1.0, digits: int = 3):
+            return round(scale * float(f(values)), digits) if values else ""
+
+        rows.append({"place": place, "x_from_m": lo, "x_to_m": hi, "drops": RELEASE_SAMPLES,
+                     "on_blocks": len(release.world), "seconds_simulated": RELEASE_SECONDS,
+                     "first_contact_lowest_top_m": stat(first_tops, min),
+                     "at_rest_valid": len(tops),
+                     "lowest_top_m": stat(tops, min), "median_top_m": stat(tops, np.median),
+                     "design_crest_m": round(float(scene.height), 3),
+                     "median_inside_share_percent": stat(inside, np.median, 100, 2),
+                     "best_inside_share_percent": stat(inside, max, 100, 2)})
+    return rows
+
+
+def greedy_release_row(scene, placed) -> dict:
+    """A second layer laid by released drops on ``placed``'s blocks on the foundation.
+
+    Each block of the rest of the required count is the one of
+    ``GREEDY_CANDIDATES`` released drops, anywhere over the design prism,
+    with the most volume inside the prism; it stays for the next drops to
+    land on. Then the whole layout is settled, every block free.
+    """
+    block, design = scene.block, scene.design.polytope
+    ground = on_ground(scene, placed)
+    release = Release(scene, ground)
+    rng = np.random.default_rng(0)
+    reach = scene.design.bottom_half_width
+    poses = {key: pose for key, _, pose in ground}
+    inside, upper = float(volumes_inside(ground, design).sum()), []
+    for slot in range(scene.required_blocks - len(ground)):
+        best = None
+        for i in range(GREEDY_CANDIDATES):
+            q = random_hanging(rng, i)
+            x, y = float(rng.uniform(-reach, reach)), float(rng.uniform(1.0, scene.length - 1.0))
+            _, rest = release.drop(q, x, y)
+            if rest is not None:
+                v = volume_inside(block, rest, design)
+                if best is None or v > best[0]:
+                    best = (v, rest)
+        if best is not None:
+            key = -2 - slot
+            release.keep(key, best[1])
+            poses[key] = best[1]
+            inside += best[0]
+            upper.append(best[0] / block.volume)
+    verdict = settle(scene, [(k, block, p) for k, p in poses.items()], seed=0)
+    return {"ground_blocks": len(ground), "candidates_per_block": GREEDY_CANDIDATES,
+            "required_blocks": scene.required_blocks, "blocks": len(poses),
+            "porosity_percent": round(100 * (1 - inside / scene.design_volume), 3),
+            "upper_inside_share_percent": round(100 * float(np.mean(upper)), 2) if upper else "",
+            "stable": bool(verdict.stable)}
+
+
 def main() -> None:
     scene = load_scene("tetrapod")
     run = Run("tetrapod_limit", {"scene": scene.name, "seeds": list(SEEDS), "time_limit_s": LIMIT,
                                  "on_ground_m": ON_GROUND, "toe_samples": TOE_SAMPLES,
-                                 "band_m": BAND, "voxel_m": VOXEL})
+                                 "band_m": BAND, "voxel_m": VOXEL, "release_samples": RELEASE_SAMPLES,
+                                 "release_seconds": RELEASE_SECONDS,
+                                 "greedy_candidates": GREEDY_CANDIDATES})
     rows, first = [], None
     for seed in SEEDS:
         row, placed = run_row(scene, seed)
@@ -306,6 +449,13 @@ def main() -> None:
     for r in nest:
         print(r)
     run.csv("tetrapod_nest", nest)
+    release = release_rows(scene, first)
+    for r in release:
+        print(r)
+    run.csv("tetrapod_release", release)
+    greedy = greedy_release_row(scene, first)
+    print(greedy)
+    run.csv("tetrapod_release_greedy", [greedy])
     run.done()
 
 
