@@ -197,7 +197,7 @@ def run_row(scene, seed: int, limit: float = LIMIT) -> tuple[dict, list]:
     placed = r.layout.placed()
     block = scene.block
     inside = volumes_inside(placed, scene.design.polytope)
-    ground = np.array([pose.apply(block.vertices)[:, 2].min() <= ON_GROUND for _, _, pose in placed])
+    ground = on_ground(block, placed)
 
     def share(mask: np.ndarray) -> float:
         """Share of the volume of the blocks in ``mask`` inside the design prism."""
@@ -336,8 +336,13 @@ def random_hanging(rng: np.random.Generator, i: int) -> np.ndarray:
     return random_quaternion(rng) if family == "free" else hanging(family, float(rng.uniform(0, 2 * np.pi)))
 
 
-def on_ground(scene, placed) -> list:
-    return [b for b in placed if b[2].apply(scene.block.vertices)[:, 2].min() <= ON_GROUND]
+def on_ground(block, placed) -> np.ndarray:
+    """Which of ``placed`` rest on the foundation (lowest point within ``ON_GROUND``), a bool mask."""
+    return np.array([pose.apply(block.vertices)[:, 2].min() <= ON_GROUND for _, _, pose in placed], bool)
+
+
+def ground_blocks(block, placed) -> list:
+    return [b for b, g in zip(placed, on_ground(block, placed), strict=True) if g]
 
 
 def release_rows(scene, placed) -> list[dict]:
@@ -350,7 +355,7 @@ def release_rows(scene, placed) -> list[dict]:
     rng = np.random.default_rng(0)
     rows = []
     for place, (lo, hi) in RELEASE_PLACES.items():
-        release = Release(scene, on_ground(scene, placed) if place == "crest" else placed)
+        release = Release(scene, ground_blocks(block, placed) if place == "crest" else placed)
         first_tops, tops, inside = [], [], []
         for i in range(RELEASE_SAMPLES):
             q = random_hanging(rng, i)
@@ -383,13 +388,15 @@ def greedy_release_row(scene, placed) -> dict:
     with the most volume inside the prism; it stays for the next drops to
     land on. Then the whole layout is settled, every block free.
     """
-    block, design = scene.block, scene.design.polytope
-    ground = on_ground(scene, placed)
+    block = scene.block
+    ground = ground_blocks(block, placed)
     release = Release(scene, ground)
     rng = np.random.default_rng(0)
     reach = scene.design.bottom_half_width
-    poses = {key: pose for key, _, pose in ground}
-    inside, upper = float(volumes_inside(ground, design).sum()), []
+    tracker = PorosityTracker(scene, "exact")
+    for key, _, pose in ground:
+        tracker.add(key, block, pose)
+    upper = []
     for slot in range(scene.required_blocks - len(ground)):
         best = None
         for i in range(GREEDY_CANDIDATES):
@@ -397,19 +404,19 @@ def greedy_release_row(scene, placed) -> dict:
             x, y = float(rng.uniform(-reach, reach)), float(rng.uniform(1.0, scene.length - 1.0))
             _, rest = release.drop(q, x, y)
             if rest is not None:
-                v = volume_inside(block, rest, design)
+                v = tracker.gain(block, rest)
                 if best is None or v > best[0]:
                     best = (v, rest)
         if best is not None:
             key = -2 - slot
             release.keep(key, best[1])
-            poses[key] = best[1]
-            inside += best[0]
+            tracker.add(key, block, best[1])
             upper.append(best[0] / block.volume)
-    verdict = settle(scene, [(k, block, p) for k, p in poses.items()], seed=0)
+    placed_now = [(k, block, release.world.pose(k)) for k in release.world.keys()]
+    verdict = settle(scene, placed_now, seed=0)
     return {"ground_blocks": len(ground), "candidates_per_block": GREEDY_CANDIDATES,
-            "required_blocks": scene.required_blocks, "blocks": len(poses),
-            "porosity_percent": round(100 * (1 - inside / scene.design_volume), 3),
+            "required_blocks": scene.required_blocks, "blocks": len(placed_now),
+            "porosity_percent": round(tracker.percent, 3),
             "upper_inside_share_percent": round(100 * float(np.mean(upper)), 2) if upper else "",
             "stable": bool(verdict.stable)}
 

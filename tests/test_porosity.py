@@ -156,8 +156,9 @@ def test_voxel_any_matches_brute_force_box_overlap(mini, shake):
 
 @pytest.mark.parametrize("name", ["shake-4t", "tetrapod"])
 def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
-    """The voxel-any rule's planes, built without a hull, cut out the same set as
-    the qhull hull of every vertex plus every box corner, at random poses and boxes."""
+    """The voxel-any rule's planes, built without a hull, cut out the same set as the
+    qhull hull of every vertex moved to every box corner (the Minkowski sum), at
+    random poses and boxes."""
     from geometry.blocks import get_block
 
     block = get_block(name)
@@ -167,7 +168,8 @@ def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
         half = rng.uniform(0.01, 0.3, 3)
         for piece in block.pieces:
             moved = piece.transformed(pose.rotation, pose.position)
-            hull = moved.minkowski_box(half)
+            corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
+            hull = ConvexPolytope.from_points((moved.vertices[:, None, :] + corners).reshape(-1, 3))
             # As the voxel grid calls it (the piece's edge normals, rotated), and on its own.
             normals, offsets = moved.box_sum_planes(half, piece.edge_face_normals @ pose.rotation.T)
             own_normals, own_offsets = moved.box_sum_planes(half)
