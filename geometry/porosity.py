@@ -309,23 +309,32 @@ class VoxelGrid:
         b0, b1 = r[:, :, 0].min(axis=0), r[:, :, 1].max(axis=0)
         if np.any(b1 <= b0):
             return None
-        nk = b1[2] - b0[2]
-        diff = np.zeros((b1[0] - b0[0], b1[1] - b0[1], nk + 1), dtype=np.int16)
+        ni, nj, nk = (int(n) for n in b1 - b0)
+        cols, los, his = [], [], []
         for (normals, offsets, _, _), pr in zip(pieces, r, strict=True):
             (i0, i1), (j0, j1), _ = pr
             if i1 <= i0 or j1 <= j0:
                 continue
             ii = np.repeat(np.arange(i0, i1), j1 - j0)
             jj = np.tile(np.arange(j0, j1), i1 - i0)
-            xy = np.column_stack([self.centres[0][ii], self.centres[1][jj]])
-            lo, hi = column_intervals(normals, offsets, xy)
-            k0, k1 = self._k_range(lo, hi)
-            hit = k1 >= k0
-            ii, jj, k0, k1 = ii[hit] - b0[0], jj[hit] - b0[1], k0[hit] - b0[2], k1[hit] - b0[2]
-            # Each column appears once per piece, so plain fancy-index += is safe.
-            diff[ii, jj, np.clip(k0, 0, nk)] += 1
-            diff[ii, jj, np.clip(k1 + 1, 0, nk)] -= 1
-        mask = np.cumsum(diff, axis=2, dtype=np.int16)[:, :, :nk] > 0
+            lo, hi = column_intervals(normals, offsets,
+                                      np.column_stack([self.centres[0][ii], self.centres[1][jj]]))
+            cols.append((ii - b0[0]) * nj + (jj - b0[1]))
+            los.append(lo)
+            his.append(hi)
+        if not cols:
+            return None
+        # One pass for every piece's columns: each column's run k0..k1 goes into a
+        # difference array along z (+1 at k0, -1 after k1), summed by bincount, which
+        # adds up a column that several pieces share.
+        k0, k1 = self._k_range(np.concatenate(los), np.concatenate(his))
+        col = np.concatenate(cols)
+        hit = k1 >= k0
+        col, k0, k1 = col[hit] * (nk + 1), k0[hit] - b0[2], k1[hit] - b0[2]
+        size = ni * nj * (nk + 1)
+        diff = (np.bincount(col + np.clip(k0, 0, nk), minlength=size)
+                - np.bincount(col + np.clip(k1 + 1, 0, nk), minlength=size))
+        mask = np.cumsum(diff.reshape(ni, nj, nk + 1), axis=2)[:, :, :nk] > 0
         slices = (slice(b0[0], b1[0]), slice(b0[1], b1[1]), slice(b0[2], b1[2]))
         return slices, mask
 
