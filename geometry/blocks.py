@@ -36,7 +36,7 @@ from scipy.spatial import HalfspaceIntersection
 from .constants import CONCRETE_DENSITY, tol
 from .errors import InputError
 from .fileio import atomic_write
-from .polytope import ConvexPolytope
+from .polytope import BoxSums, ConvexPolytope
 
 #: Table I of the reference paper: the 4-ton Shake Block.
 SHAKE_4T_VOLUME = 1.735  # m^3
@@ -71,6 +71,11 @@ class Block:
     faces: np.ndarray
     pieces: tuple[ConvexPolytope, ...]
     density: float = CONCRETE_DENSITY
+
+    @cached_property
+    def box_sums(self) -> BoxSums:
+        """The pieces stacked for their Minkowski sums with a voxel (``voxel-any`` porosity)."""
+        return BoxSums(self.pieces)
 
     @cached_property
     def manifold(self) -> m3.Manifold:

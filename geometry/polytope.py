@@ -132,37 +132,15 @@ class ConvexPolytope:
             raise ValueError("hull surface is not closed: an edge does not join two triangles")
         return n[owner[order].reshape(-1, 2)]
 
-    def box_sum_planes(self, half: np.ndarray,
-                       edge_normals: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def box_sum_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Half-spaces of the Minkowski sum with the axis-aligned box ``[-half, half]``.
 
         An axis-aligned box centred at ``c`` touches this polytope exactly when
-        ``c`` lies in the sum; the ``voxel-any`` porosity rule relies on it. The
-        sum is the hull of every vertex moved to every box corner, but qhull
-        takes about 0.8 ms a piece, so the planes are built directly (the tests
-        hold them to that hull). The sum's facet normals are this polytope's,
-        the box's six, and, for each edge whose two faces lie on either side of
-        a box axis ``a`` (the edge is on the silhouette seen along ``a``), the
-        normal between them perpendicular to ``a``. Each plane sits at the sum's
-        support along its normal. Normals that are not facets would only repeat
-        a bound, so none are pruned.
-
-        ``edge_normals`` is :attr:`edge_face_normals`, when the caller has it:
-        a moved copy of a block's piece passes its original's, rotated, rather
-        than pairing up its edges again on every move.
+        ``c`` lies in the sum; the ``voxel-any`` porosity rule relies on it.
+        See :class:`BoxSums`, which builds them for many pieces at once.
         """
-        pair = self.edge_face_normals if edge_normals is None else edge_normals  # (e, 2, 3)
-        n1, n2 = pair[:, 0], pair[:, 1]
-        # For edge e and axis a (n1[e, a] and n2[e, a] of opposite signs), the
-        # combination n2[e, a] n1[e] - n1[e, a] n2[e], perpendicular to a, turned
-        # to a positive combination of the two faces' normals.
-        e, a = np.nonzero(n1 * n2 < 0)
-        s1, s2 = n1[e, a][:, None], n2[e, a][:, None]
-        m = (s2 * n1[e] - s1 * n2[e]) * np.sign(s2)
-        m /= np.sqrt(np.einsum("ij,ij->i", m, m))[:, None]
-        n = np.concatenate([self.normals, np.eye(3), -np.eye(3), m])
-        support = (self.vertices @ n.T).max(axis=0)
-        return n, support + np.abs(n) @ np.asarray(half, dtype=float)
+        normals, offsets, _, _ = BoxSums((self,)).planes(np.eye(3), np.zeros(3), half)[0]
+        return normals, offsets
 
     def eroded_box_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Half-spaces of the set of centres whose box ``[-half, half]`` fits inside.
@@ -171,6 +149,75 @@ class ConvexPolytope:
         support along its normal, ``sum_i half_i |n_i|``.
         """
         return self.normals, self.offsets - np.abs(self.normals) @ np.asarray(half)
+
+
+class BoxSums:
+    """Minkowski sums of convex pieces with an axis-aligned box, the pieces moved together.
+
+    The sum is the hull of every vertex moved to every box corner, but qhull
+    takes about 0.8 ms a piece, so the planes are built directly (the tests
+    hold them to that hull). The sum's facet normals are the piece's, the
+    box's six, and, for each edge whose two faces lie on either side of a box
+    axis ``a`` (the edge is on the silhouette seen along ``a``), the normal
+    between them perpendicular to ``a``. Each plane sits at the sum's support
+    along its normal. Normals that are not facets would only repeat a bound,
+    so none are pruned.
+
+    A block's pieces are stacked once, so that a move (the voxel tracker's
+    hot path) costs one pass over all of them, not one per piece.
+    """
+
+    _AXES = np.concatenate([np.eye(3), -np.eye(3)])
+
+    def __init__(self, pieces: tuple[ConvexPolytope, ...]):
+        self.count = len(pieces)
+        self.vertices = np.concatenate([p.vertices for p in pieces])
+        self.vertex_piece = np.repeat(np.arange(self.count), [len(p.vertices) for p in pieces])
+        self.vertex_start = np.cumsum([0] + [len(p.vertices) for p in pieces[:-1]])
+        self.normals = np.concatenate([p.normals for p in pieces])
+        self.offsets = np.concatenate([p.offsets for p in pieces])
+        self.normal_split = np.cumsum([len(p.normals) for p in pieces])
+        self.pairs = np.concatenate([p.edge_face_normals for p in pieces])  # (e, 2, 3)
+        self.pair_piece = np.repeat(np.arange(self.count), [len(p.edge_face_normals) for p in pieces])
+
+    def planes(self, rotation: np.ndarray, translation: np.ndarray,
+               half: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Each piece's sum, the pieces moved by ``p -> R p + t``.
+
+        Returns ``(normals, offsets, lo, hi)`` per piece: its half-spaces
+        ``normals @ p <= offsets`` and its bounding box.
+        """
+        half = np.asarray(half, dtype=float)
+        vertices = self.vertices @ rotation.T + translation
+        own = self.normals @ rotation.T
+        own_offsets = self.offsets + own @ translation + np.abs(own) @ half
+        pairs = self.pairs @ rotation.T
+        n1, n2 = pairs[:, 0], pairs[:, 1]
+        # For edge e and axis a (n1[e, a] and n2[e, a] of opposite signs), the
+        # combination n2[e, a] n1[e] - n1[e, a] n2[e], perpendicular to a, turned
+        # to a positive combination of the two faces' normals.
+        e, a = np.nonzero(n1 * n2 < 0)
+        s1, s2 = n1[e, a][:, None], n2[e, a][:, None]
+        m = (s2 * n1[e] - s1 * n2[e]) * np.sign(s2)
+        m /= np.sqrt(np.einsum("ij,ij->i", m, m))[:, None]
+        m_piece = self.pair_piece[e]  # ascending: np.nonzero goes edge by edge
+        # Support of each silhouette normal over its own piece's vertices.
+        along = vertices @ m.T
+        along[self.vertex_piece[:, None] != m_piece[None, :]] = -np.inf
+        m_offsets = along.max(axis=0) + np.abs(m) @ half
+        # The box's six planes at each piece's bounding box, grown by the box.
+        lo = np.minimum.reduceat(vertices, self.vertex_start)
+        hi = np.maximum.reduceat(vertices, self.vertex_start)
+        box_offsets = np.concatenate([hi + half, half - lo], axis=1)  # (pieces, 6)
+        m_split = np.searchsorted(m_piece, np.arange(1, self.count + 1))
+        out = []
+        for i, (n, d, mn, md) in enumerate(zip(np.split(own, self.normal_split[:-1]),
+                                               np.split(own_offsets, self.normal_split[:-1]),
+                                               np.split(m, m_split[:-1]), np.split(m_offsets, m_split[:-1]),
+                                               strict=True)):
+            out.append((np.concatenate([n, self._AXES, mn]), np.concatenate([d, box_offsets[i], md]),
+                        lo[i] - half, hi[i] + half))
+        return out
 
 
 def column_intervals(

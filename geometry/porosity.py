@@ -293,17 +293,15 @@ class VoxelGrid:
         rotation, t = pose.rotation, pose.position
         # Each piece as (planes, bounding box): under the "any" rule, the piece's
         # Minkowski sum with a voxel (the centres of the voxels that touch it).
-        pieces = []
-        half = self.size / 2
-        for p in block.pieces:
-            moved = p.transformed(rotation, t)
-            lo, hi = moved.vertices.min(axis=0), moved.vertices.max(axis=0)
-            if self.rule == "any":
-                normals, offsets = moved.box_sum_planes(half, p.edge_face_normals @ rotation.T)
-                lo, hi = lo - half, hi + half
-            else:
-                normals, offsets = moved.normals, moved.offsets
-            pieces.append((normals, offsets, lo.tolist(), hi.tolist()))
+        if self.rule == "any":
+            pieces = [(n, d, lo.tolist(), hi.tolist())
+                      for n, d, lo, hi in block.box_sums.planes(rotation, t, self.size / 2)]
+        else:
+            pieces = []
+            for p in block.pieces:
+                moved = p.transformed(rotation, t)
+                lo, hi = moved.vertices.min(axis=0), moved.vertices.max(axis=0)
+                pieces.append((moved.normals, moved.offsets, lo.tolist(), hi.tolist()))
         ranges = [[self._index_range(a, lo[a], hi[a]) for a in range(3)] for _, _, lo, hi in pieces]
         r = np.array(ranges)  # (pieces, 3, 2)
         b0, b1 = r[:, :, 0].min(axis=0), r[:, :, 1].max(axis=0)

@@ -166,14 +166,16 @@ def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
     for _ in range(10):
         pose = Pose(rng.uniform(-3, 3, 3), random_quaternion(rng))
         half = rng.uniform(0.01, 0.3, 3)
-        for piece in block.pieces:
+        # As the voxel grid calls it (every piece at once), and for one moved piece on its own.
+        sums = block.box_sums.planes(pose.rotation, pose.position, half)
+        assert len(sums) == len(block.pieces)
+        for piece, (normals, offsets, box_lo, box_hi) in zip(block.pieces, sums, strict=True):
             moved = piece.transformed(pose.rotation, pose.position)
             corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
             hull = ConvexPolytope.from_points((moved.vertices[:, None, :] + corners).reshape(-1, 3))
-            # As the voxel grid calls it (the piece's edge normals, rotated), and on its own.
-            normals, offsets = moved.box_sum_planes(half, piece.edge_face_normals @ pose.rotation.T)
             own_normals, own_offsets = moved.box_sum_planes(half)
             assert np.allclose(normals, own_normals) and np.allclose(offsets, own_offsets)
+            assert np.allclose([box_lo, box_hi], hull.aabb)
             lo, hi = hull.aabb
             points = rng.uniform(lo - 0.3, hi + 0.3, (3000, 3))
             expected = hull.contains(points, margin=0.0)
