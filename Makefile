@@ -37,7 +37,7 @@ test-slow: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q -m slow
 
 # Every benchmark in benchmarks/ (docs/benchmarks.md); results in benchmarks/results/.
-# About 24 minutes on 2 cores (23.8 min in benchmarks/results/run_all.csv).
+# About 27 minutes on 2 cores (26.8 min in benchmarks/results/run_all.csv).
 bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/run_all.py
 
