@@ -291,7 +291,17 @@ def tetrapod_release() -> list[str]:
                    [[g["ground_blocks"], g["candidates_per_block"], f"{g['blocks']} / {g['required_blocks']}",
                      g["porosity_percent"], g["upper_inside_share_percent"], _stable(g)]
                     for g in rows("tetrapod_release_greedy")])
-    return out + [""] + greedy if out and greedy else out or greedy
+    out = out + [""] + greedy if out and greedy else out or greedy
+    bound = table("CP-SAT's bound on the blocks over seed 1's first layer (`tetrapod_upper_bound.csv`, "
+                  "`--bound`)",
+                  "blocks on the foundation | blocks over them | candidates in the zone | "
+                  "at least the floor | conflicts | CP-SAT | mean inside needed (%) | "
+                  "mean inside at most (%) | best candidate (%)",
+                  [[b["ground_blocks"], b["upper_blocks"], b["candidates_in_zone"],
+                    f"{b['candidates_at_least_floor']} (floor {b['floor_percent']} %)", b["conflicts"],
+                    b["cpsat_status"], b["upper_inside_needed_percent"], b["upper_inside_bound_percent"],
+                    b["best_candidate_inside_percent"]] for b in rows("tetrapod_upper_bound")])
+    return out + [""] + bound if out and bound else out or bound
 
 
 def _stable(row: dict[str, str]) -> str:
@@ -511,6 +521,21 @@ def tetrapod_block() -> list[str]:
                     f"foundation, places {g['blocks']} of {g['required_blocks']} at "
                     f"{float(g['porosity_percent']):.1f} % ({_stable(g)} when settled whole): "
                     "fewer than the pattern's second layer.")
+    bound = rows("tetrapod_upper_bound")
+    if bound:
+        b = bound[0]
+        out.append(f"  CP-SAT bounds it over a candidate set: with seed 1's {b['ground_blocks']} blocks "
+                   f"on the foundation as laid, the other {b['upper_blocks']} blocks need "
+                   f"{float(b['upper_inside_needed_percent']):.1f} % inside on average; over "
+                   f"{b['candidates_in_zone']} candidates in the tolerance zone "
+                   f"(a {float(b['grid_step_m']):g} m grid, {b['orientations']} orientations, each lowered "
+                   "onto those blocks alone, none required to stand), no "
+                   f"{b['upper_blocks']} of them that do not interpenetrate average more than "
+                   f"{float(b['upper_inside_bound_percent']):.1f} % (CP-SAT's proven bound"
+                   + ("" if b["cpsat_status"] == "OPTIMAL" else ", the search stopped short of optimality")
+                   + f"; a block under {float(b['floor_percent']):g} % counted as "
+                   f"{float(b['floor_percent']):g} %). With this first layer the target is out of reach "
+                   "over that candidate set.")
     tall = rows("tetrapod_variants")
     if "crest_loss_m3" in r0:
         out.append(f"  Of the {float(r0['total_loss_m3']):.1f} m³ of seed {r0['seed']}'s blocks outside the "
