@@ -276,32 +276,36 @@ def tetrapod_release() -> list[str]:
     def dash(r: dict[str, str], key: str) -> str:
         return r[key] or "-"
 
-    out = table("Crane drops released and settled (`tetrapod_release.csv`)",
-                "<where | x from the axis (m) | drops | lowest top at first contact (m) | "
-                "at rest and valid | lowest top (m) | median top (m) | design crest (m) | "
-                "inside share: median, best (%)",
-                [[r["place"], f"{r['x_from_m']} to {r['x_to_m']}", r["drops"],
-                  r["first_contact_lowest_top_m"], r["at_rest_valid"], dash(r, "lowest_top_m"),
-                  dash(r, "median_top_m"), r["design_crest_m"],
-                  f"{dash(r, 'median_inside_share_percent')}, {dash(r, 'best_inside_share_percent')}"]
-                 for r in rows("tetrapod_release")])
-    greedy = table("A second layer of released drops (`tetrapod_release_greedy.csv`)",
-                   "blocks on the foundation | released drops per block | placed / required | "
-                   "porosity (%) | upper blocks inside (%) | <settled whole",
-                   [[g["ground_blocks"], g["candidates_per_block"], f"{g['blocks']} / {g['required_blocks']}",
-                     g["porosity_percent"], g["upper_inside_share_percent"], _stable(g)]
-                    for g in rows("tetrapod_release_greedy")])
-    out = out + [""] + greedy if out and greedy else out or greedy
-    bound = table("CP-SAT's bound on the blocks over seed 1's first layer (`tetrapod_upper_bound.csv`, "
-                  "`--bound`)",
-                  "blocks on the foundation | blocks over them | candidates in the zone | "
-                  "at least the floor | conflicts | CP-SAT | mean inside needed (%) | "
-                  "mean inside at most (%) | best candidate (%)",
-                  [[b["ground_blocks"], b["upper_blocks"], b["candidates_in_zone"],
-                    f"{b['candidates_at_least_floor']} (floor {b['floor_percent']} %)", b["conflicts"],
-                    b["cpsat_status"], b["upper_inside_needed_percent"], b["upper_inside_bound_percent"],
-                    b["best_candidate_inside_percent"]] for b in rows("tetrapod_upper_bound")])
-    return out + [""] + bound if out and bound else out or bound
+    return table("Crane drops released and settled (`tetrapod_release.csv`)",
+                 "<where | x from the axis (m) | drops | lowest top at first contact (m) | "
+                 "at rest and valid | lowest top (m) | median top (m) | design crest (m) | "
+                 "inside share: median, best (%)",
+                 [[r["place"], f"{r['x_from_m']} to {r['x_to_m']}", r["drops"],
+                   r["first_contact_lowest_top_m"], r["at_rest_valid"], dash(r, "lowest_top_m"),
+                   dash(r, "median_top_m"), r["design_crest_m"],
+                   f"{dash(r, 'median_inside_share_percent')}, {dash(r, 'best_inside_share_percent')}"]
+                  for r in rows("tetrapod_release")])
+
+
+def tetrapod_release_greedy() -> list[str]:
+    return table("A second layer of released drops (`tetrapod_release_greedy.csv`)",
+                 "blocks on the foundation | released drops per block | placed / required | "
+                 "porosity (%) | upper blocks inside (%) | <settled whole",
+                 [[g["ground_blocks"], g["candidates_per_block"], f"{g['blocks']} / {g['required_blocks']}",
+                   g["porosity_percent"], g["upper_inside_share_percent"], _stable(g)]
+                  for g in rows("tetrapod_release_greedy")])
+
+
+def tetrapod_upper_bound() -> list[str]:
+    return table("CP-SAT's bound on the blocks over seed 1's first layer (`tetrapod_upper_bound.csv`, "
+                 "`--bound`)",
+                 "blocks on the foundation | blocks over them | candidates in the zone | "
+                 "at least the floor | conflicts | CP-SAT | mean inside needed (%) | "
+                 "mean inside at most (%) | best candidate (%)",
+                 [[b["ground_blocks"], b["upper_blocks"], b["candidates_in_zone"],
+                   f"{b['candidates_at_least_floor']} (floor {b['floor_percent']} %)", b["conflicts"],
+                   b["cpsat_status"], b["upper_inside_needed_percent"], b["upper_inside_bound_percent"],
+                   b["best_candidate_inside_percent"]] for b in rows("tetrapod_upper_bound")])
 
 
 def _stable(row: dict[str, str]) -> str:
@@ -319,7 +323,8 @@ def main() -> None:
               "median of repeated calls on the machine named at the foot."]]
     parts += [porosity_speed(), paper(), accuracy(), collision(), scaling(), settle_speed(), score_speed(),
               batch_cluster(), optimizer_quality(), optimizer_scaling(), tetrapod_limit(), tetrapod_losses(),
-              tetrapod_solid(), tetrapod_toe(), tetrapod_nest(), tetrapod_release(), run_times()]
+              tetrapod_solid(), tetrapod_toe(), tetrapod_nest(), tetrapod_release(),
+              tetrapod_release_greedy(), tetrapod_upper_bound(), run_times()]
     text = "\n\n".join("\n".join(p) for p in parts if p)
     m = meta("run_all") or meta("porosity_speed")
     if m:

@@ -59,7 +59,7 @@ Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
 ``results/tetrapod_variants.csv`` and ``results/tetrapod_variants_solid.csv``
 (the copies and the 4 m copy's map, with ``--variants``),
 ``results/tetrapod_toe.csv`` (the toe), ``results/tetrapod_nest.csv``
-(the second layer), ``results/tetrapod_release.csv`` (the drops released)
+(the second layer), ``results/tetrapod_release.csv`` (the drops released),
 ``results/tetrapod_release_greedy.csv`` (the second layer they make) and
 ``results/tetrapod_upper_bound.csv`` (the bound, with ``--bound``).
 
@@ -78,7 +78,7 @@ import numpy as np
 from common import Run
 
 from geometry.clip import volume_inside, volumes_inside
-from geometry.collision import CollisionWorld, world_of
+from geometry.collision import world_of
 from geometry.constants import tol
 from geometry.polytope import ConvexPolytope
 from geometry.porosity import PorosityTracker
@@ -86,7 +86,7 @@ from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene, parse_scene
 from optimizer.api import optimize
-from optimizer.cpsat import CpSat
+from optimizer.cpsat import CpSat, overlapping_pairs
 from optimizer.drop import DropWorld, Shape
 from optimizer.hangings import FAMILIES, hanging
 from optimizer.patterns import first_layer, lattice_for
@@ -133,6 +133,13 @@ def inside_share_needed(scene, within: float = 1.0) -> float:
     """Least inside share ``f`` for the required count to land within ``within`` points of target."""
     filled = (1 - (scene.target_porosity + within) / 100) * scene.design_volume
     return filled / (scene.required_blocks * scene.block.volume)
+
+
+def rest_share_needed(scene, ground_inside: float, ground: int) -> float:
+    """Mean share inside that the blocks the required count leaves over ``ground`` blocks on the
+    foundation need, those holding ``ground_inside`` m^3 inside the design prism."""
+    needed = inside_share_needed(scene) * scene.required_blocks * scene.block.volume  # m^3 inside
+    return (needed - ground_inside) / (max(scene.required_blocks - ground, 1) * scene.block.volume)
 
 
 def face_losses(scene, placed, inside: np.ndarray) -> dict:
@@ -220,10 +227,7 @@ def run_row(scene, seed: int, limit: float = LIMIT) -> tuple[dict, list]:
         return float(inside[mask].sum() / (max(1, mask.sum()) * block.volume))
 
     f = share(np.ones(len(placed), bool))
-    # With the blocks on the foundation as they are, the share the rest of the count would need.
-    rest = scene.required_blocks - int(ground.sum())
-    needed = inside_share_needed(scene) * scene.required_blocks * block.volume  # m^3 inside
-    rest_needed = (needed - inside[ground].sum()) / (max(rest, 1) * block.volume)
+    rest_needed = rest_share_needed(scene, float(inside[ground].sum()), int(ground.sum()))
     projected = 100 * (1 - scene.required_blocks * block.volume * f / scene.design_volume)
     return {
         "seed": seed,
@@ -323,9 +327,7 @@ class Release:
     def __init__(self, scene, placed):
         self.scene, self.block = scene, scene.block
         self.zone = scene.tolerance.polytope
-        self.drops = DropWorld(scene.foundation, cell=2.0 * self.block.bounding_radius)
-        for key, _, pose in placed:
-            self.drops.add(key, Shape.of(self.block, pose.quaternion), pose.position)
+        self.drops = DropWorld.of(scene.foundation, placed)
         self.world = world_of(placed)
 
     def drop(self, q: np.ndarray, x: float, y: float) -> tuple[float, Pose | None]:
@@ -456,9 +458,7 @@ def upper_bound_row(scene, placed) -> dict:
     """
     block, zone = scene.block, scene.tolerance
     ground = ground_blocks(block, placed)
-    drops = DropWorld(scene.foundation, cell=2.0 * block.bounding_radius)
-    for key, _, pose in ground:
-        drops.add(key, Shape.of(block, pose.quaternion), pose.position)
+    drops = DropWorld.of(scene.foundation, ground)
     rng = np.random.default_rng(0)
     quats = [hanging(f, yaw) for f in FAMILIES for yaw in np.arange(BOUND_YAWS) * 2 * np.pi / BOUND_YAWS]
     quats += [random_quaternion(rng) for _ in range(BOUND_FREE)]
@@ -475,21 +475,17 @@ def upper_bound_row(scene, placed) -> dict:
     share = volumes_inside([(i, block, pose) for i, pose in enumerate(cands)], scene.design.polytope)
     share = share / block.volume
     keep = np.flatnonzero(share >= BOUND_FLOOR)
-    world = CollisionWorld(cell=2.0 * block.bounding_radius)
-    for n, i in enumerate(keep):
-        world.add(n, block, cands[i])
-    conflicts = {(min(c.a, c.b), max(c.a, c.b)) for c in world.pairs(threshold=0.0)}
+    conflicts = overlapping_pairs(block, [cands[i] for i in keep])
     rest = scene.required_blocks - len(ground)
     chosen, _, bound, status = CpSat(time_limit=BOUND_SECONDS).solve(
         [float(share[i] - BOUND_FLOOR) * block.volume for i in keep], conflicts, rest, seed=0)
-    needed = inside_share_needed(scene) * scene.required_blocks * block.volume
-    ground_inside = float(volumes_inside(ground, scene.design.polytope).sum())
+    needed = rest_share_needed(scene, float(volumes_inside(ground, scene.design.polytope).sum()), len(ground))
     return {"ground_blocks": len(ground), "upper_blocks": rest, "grid_step_m": BOUND_STEP,
             "orientations": len(quats), "candidates_in_zone": len(cands),
             "candidates_at_least_floor": len(keep), "floor_percent": round(100 * BOUND_FLOOR, 1),
             "conflicts": len(conflicts), "cpsat_status": status, "chosen": len(chosen),
             "best_candidate_inside_percent": round(100 * float(share.max()), 2),
-            "upper_inside_needed_percent": round(100 * (needed - ground_inside) / (rest * block.volume), 2),
+            "upper_inside_needed_percent": round(100 * needed, 2),
             "upper_inside_bound_percent": round(100 * (bound / (rest * block.volume) + BOUND_FLOOR), 2),
             "seconds": round(time.perf_counter() - t0, 1)}
 

@@ -36,7 +36,7 @@ from scipy.spatial import HalfspaceIntersection
 from .constants import CONCRETE_DENSITY, tol
 from .errors import InputError
 from .fileio import atomic_write
-from .polytope import BoxSums, ConvexPolytope
+from .polytope import ConvexPolytope, PieceStack
 
 #: Table I of the reference paper: the 4-ton Shake Block.
 SHAKE_4T_VOLUME = 1.735  # m^3
@@ -73,9 +73,9 @@ class Block:
     density: float = CONCRETE_DENSITY
 
     @cached_property
-    def box_sums(self) -> BoxSums:
-        """The pieces stacked for their Minkowski sums with a voxel (``voxel-any`` porosity)."""
-        return BoxSums(self.pieces)
+    def stack(self) -> PieceStack:
+        """The pieces stacked, to move them in one pass (the voxel porosity trackers)."""
+        return PieceStack(self.pieces)
 
     @cached_property
     def manifold(self) -> m3.Manifold:

@@ -137,9 +137,9 @@ class ConvexPolytope:
 
         An axis-aligned box centred at ``c`` touches this polytope exactly when
         ``c`` lies in the sum; the ``voxel-any`` porosity rule relies on it.
-        See :class:`BoxSums`, which builds them for many pieces at once.
+        See :class:`PieceStack`, which builds them for many pieces at once.
         """
-        normals, offsets, _, _ = BoxSums((self,)).planes(np.eye(3), np.zeros(3), half)[0]
+        normals, offsets, _, _ = PieceStack((self,)).planes(np.eye(3), np.zeros(3), half)[0]
         return normals, offsets
 
     def eroded_box_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -151,20 +151,24 @@ class ConvexPolytope:
         return self.normals, self.offsets - np.abs(self.normals) @ np.asarray(half)
 
 
-class BoxSums:
-    """Minkowski sums of convex pieces with an axis-aligned box, the pieces moved together.
+class PieceStack:
+    """A block's convex pieces stacked once, to move them all in one pass.
 
-    The sum is the hull of every vertex moved to every box corner, but qhull
-    takes about 0.8 ms a piece, so the planes are built directly (the tests
-    hold them to that hull). The sum's facet normals are the piece's, the
-    box's six, and, for each edge whose two faces lie on either side of a box
-    axis ``a`` (the edge is on the silhouette seen along ``a``), the normal
-    between them perpendicular to ``a``. Each plane sits at the sum's support
-    along its normal. Normals that are not facets would only repeat a bound,
-    so none are pruned.
+    The voxel trackers move one block per step (their hot path); this keeps
+    that to one pass over every piece rather than one per piece.
 
-    A block's pieces are stacked once, so that a move (the voxel tracker's
-    hot path) costs one pass over all of them, not one per piece.
+    :meth:`planes` gives each moved piece's half-spaces, or, with a box
+    ``half``, those of its Minkowski sum with the axis-aligned box
+    ``[-half, half]``: an axis-aligned box centred at ``c`` touches the piece
+    exactly when ``c`` lies in the sum, which the ``voxel-any`` porosity rule
+    relies on. The sum is the hull of every vertex moved to every box corner,
+    but qhull takes about 0.8 ms a piece, so the planes are built directly
+    (the tests hold them to that hull). The sum's facet normals are the
+    piece's, the box's six, and, for each edge whose two faces lie on either
+    side of a box axis ``a`` (the edge is on the silhouette seen along
+    ``a``), the normal between them perpendicular to ``a``. Each plane sits
+    at the sum's support along its normal. Normals that are not facets would
+    only repeat a bound, so none are pruned.
     """
 
     _AXES = np.concatenate([np.eye(3), -np.eye(3)])
@@ -176,22 +180,34 @@ class BoxSums:
         self.vertex_start = np.cumsum([0] + [len(p.vertices) for p in pieces[:-1]])
         self.normals = np.concatenate([p.normals for p in pieces])
         self.offsets = np.concatenate([p.offsets for p in pieces])
-        self.normal_split = np.cumsum([len(p.normals) for p in pieces])
-        self.pairs = np.concatenate([p.edge_face_normals for p in pieces])  # (e, 2, 3)
-        self.pair_piece = np.repeat(np.arange(self.count), [len(p.edge_face_normals) for p in pieces])
+        self.normal_split = np.cumsum([len(p.normals) for p in pieces])[:-1]
+        self._pieces = pieces
 
-    def planes(self, rotation: np.ndarray, translation: np.ndarray,
-               half: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
-        """Each piece's sum, the pieces moved by ``p -> R p + t``.
+    @cached_property
+    def _pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every piece's :attr:`ConvexPolytope.edge_face_normals`, and the piece of each edge."""
+        pairs = np.concatenate([p.edge_face_normals for p in self._pieces])  # (e, 2, 3)
+        return pairs, np.repeat(np.arange(self.count), [len(p.edge_face_normals) for p in self._pieces])
+
+    def planes(self, rotation: np.ndarray, translation: np.ndarray, half: np.ndarray | None = None
+               ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Each piece moved by ``p -> R p + t``, or its sum with the box ``half``.
 
         Returns ``(normals, offsets, lo, hi)`` per piece: its half-spaces
         ``normals @ p <= offsets`` and its bounding box.
         """
-        half = np.asarray(half, dtype=float)
         vertices = self.vertices @ rotation.T + translation
         own = self.normals @ rotation.T
-        own_offsets = self.offsets + own @ translation + np.abs(own) @ half
-        pairs = self.pairs @ rotation.T
+        own_offsets = self.offsets + own @ translation
+        lo = np.minimum.reduceat(vertices, self.vertex_start)
+        hi = np.maximum.reduceat(vertices, self.vertex_start)
+        normals = np.split(own, self.normal_split)
+        if half is None:
+            return list(zip(normals, np.split(own_offsets, self.normal_split), lo, hi, strict=True))
+        half = np.asarray(half, dtype=float)
+        own_offsets += np.abs(own) @ half
+        pairs, pair_piece = self._pairs
+        pairs = pairs @ rotation.T
         n1, n2 = pairs[:, 0], pairs[:, 1]
         # For edge e and axis a (n1[e, a] and n2[e, a] of opposite signs), the
         # combination n2[e, a] n1[e] - n1[e, a] n2[e], perpendicular to a, turned
@@ -200,24 +216,18 @@ class BoxSums:
         s1, s2 = n1[e, a][:, None], n2[e, a][:, None]
         m = (s2 * n1[e] - s1 * n2[e]) * np.sign(s2)
         m /= np.sqrt(np.einsum("ij,ij->i", m, m))[:, None]
-        m_piece = self.pair_piece[e]  # ascending: np.nonzero goes edge by edge
+        m_piece = pair_piece[e]  # ascending: np.nonzero goes edge by edge
         # Support of each silhouette normal over its own piece's vertices.
         along = vertices @ m.T
         along[self.vertex_piece[:, None] != m_piece[None, :]] = -np.inf
         m_offsets = along.max(axis=0) + np.abs(m) @ half
         # The box's six planes at each piece's bounding box, grown by the box.
-        lo = np.minimum.reduceat(vertices, self.vertex_start)
-        hi = np.maximum.reduceat(vertices, self.vertex_start)
         box_offsets = np.concatenate([hi + half, half - lo], axis=1)  # (pieces, 6)
-        m_split = np.searchsorted(m_piece, np.arange(1, self.count + 1))
-        out = []
-        for i, (n, d, mn, md) in enumerate(zip(np.split(own, self.normal_split[:-1]),
-                                               np.split(own_offsets, self.normal_split[:-1]),
-                                               np.split(m, m_split[:-1]), np.split(m_offsets, m_split[:-1]),
-                                               strict=True)):
-            out.append((np.concatenate([n, self._AXES, mn]), np.concatenate([d, box_offsets[i], md]),
-                        lo[i] - half, hi[i] + half))
-        return out
+        m_split = np.searchsorted(m_piece, np.arange(1, self.count))
+        return [(np.concatenate([n, self._AXES, mn]), np.concatenate([d, box, md]), low - half, high + half)
+                for n, d, mn, md, box, low, high in zip(
+                    normals, np.split(own_offsets, self.normal_split), np.split(m, m_split),
+                    np.split(m_offsets, m_split), box_offsets, lo, hi, strict=True)]
 
 
 def column_intervals(

@@ -293,15 +293,8 @@ class VoxelGrid:
         rotation, t = pose.rotation, pose.position
         # Each piece as (planes, bounding box): under the "any" rule, the piece's
         # Minkowski sum with a voxel (the centres of the voxels that touch it).
-        if self.rule == "any":
-            pieces = [(n, d, lo.tolist(), hi.tolist())
-                      for n, d, lo, hi in block.box_sums.planes(rotation, t, self.size / 2)]
-        else:
-            pieces = []
-            for p in block.pieces:
-                moved = p.transformed(rotation, t)
-                lo, hi = moved.vertices.min(axis=0), moved.vertices.max(axis=0)
-                pieces.append((moved.normals, moved.offsets, lo.tolist(), hi.tolist()))
+        half = self.size / 2 if self.rule == "any" else None
+        pieces = [(n, d, lo.tolist(), hi.tolist()) for n, d, lo, hi in block.stack.planes(rotation, t, half)]
         ranges = [[self._index_range(a, lo[a], hi[a]) for a in range(3)] for _, _, lo, hi in pieces]
         r = np.array(ranges)  # (pieces, 3, 2)
         b0, b1 = r[:, :, 0].min(axis=0), r[:, :, 1].max(axis=0)

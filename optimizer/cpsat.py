@@ -123,10 +123,7 @@ class CpSat(Strategy):
                   ) -> tuple[set[tuple[int, int]], set[tuple[int, int]]]:
         """Conflicting pairs ``(i, j)``, and ordering pairs ``(i, j)``: i must go before j."""
         block = problem.scene.block
-        world = CollisionWorld(cell=2.0 * block.bounding_radius)
-        for i, (_, pose, _) in enumerate(cands):
-            world.add(i, block, pose)
-        conflicts = {(min(c.a, c.b), max(c.a, c.b)) for c in world.pairs(threshold=0.0)}
+        conflicts = overlapping_pairs(block, [pose for _, pose, _ in cands])
         # One drop world of every candidate: each candidate asks, unpruned, how high each
         # neighbour would stop it; a neighbour that stops it short of the ground must go first.
         drops = DropWorld(problem.scene.foundation, cell=2.0 * block.bounding_radius)
@@ -249,6 +246,14 @@ class CpSat(Strategy):
             "seconds": time.monotonic() - t0,
         }
         return start
+
+
+def overlapping_pairs(block, poses: list[Pose]) -> set[tuple[int, int]]:
+    """Pairs ``(i, j)``, ``i < j``, of ``poses`` of ``block`` that interpenetrate (FCL)."""
+    world = CollisionWorld(cell=2.0 * block.bounding_radius)
+    for i, pose in enumerate(poses):
+        world.add(i, block, pose)
+    return {(min(c.a, c.b), max(c.a, c.b)) for c in world.pairs(threshold=0.0)}
 
 
 def _topological(nodes: list[int], before: set[tuple[int, int]]) -> list[int]:

@@ -137,6 +137,15 @@ class DropWorld:
         self._grid: dict[tuple[int, int], set[int]] = {}
         self._max_r = 0.0
 
+    @classmethod
+    def of(cls, foundation: Foundation, placed: list) -> DropWorld:
+        """A world of ``placed`` blocks ``(key, block, pose)`` as they stand, on ``foundation``."""
+        cell = 2.0 * max((block.bounding_radius for _, block, _ in placed), default=1.0)
+        world = cls(foundation, cell=cell)
+        for key, block, pose in placed:
+            world.add(key, Shape.of(block, pose.quaternion), pose.position)
+        return world
+
     def __len__(self) -> int:
         return len(self._placed)
 

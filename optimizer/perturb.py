@@ -60,11 +60,7 @@ def _carriers(scene: Scene, layout: Layout) -> tuple[dict[int, BlockInterlock], 
 
 
 def _drop_world(scene: Scene, layout: Layout, without: set[int]) -> DropWorld:
-    world = DropWorld(scene.foundation, cell=2.0 * scene.block.bounding_radius)
-    for key, block, pose in layout.placed():
-        if key not in without:
-            world.add(key, Shape.of(block, pose.quaternion), pose.position)
-    return world
+    return DropWorld.of(scene.foundation, [b for b in layout.placed() if b[0] not in without])
 
 
 def lift_out_of_tolerance(scene: Scene, layout: Layout) -> tuple[Layout, int]:

@@ -167,7 +167,7 @@ def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
         pose = Pose(rng.uniform(-3, 3, 3), random_quaternion(rng))
         half = rng.uniform(0.01, 0.3, 3)
         # As the voxel grid calls it (every piece at once), and for one moved piece on its own.
-        sums = block.box_sums.planes(pose.rotation, pose.position, half)
+        sums = block.stack.planes(pose.rotation, pose.position, half)
         assert len(sums) == len(block.pieces)
         for piece, (normals, offsets, box_lo, box_hi) in zip(block.pieces, sums, strict=True):
             moved = piece.transformed(pose.rotation, pose.position)
