@@ -39,6 +39,11 @@ machine and code as everything else:
   For each family, the lowest top reached, and the largest share of such a
   block under the design crest (the block moved to the middle of the crest,
   where only the crest plane cuts it);
+* the pattern's packing density away from the slopes and ends: the tuned
+  first layer and its upper layer laid in crane order on a patch of
+  lattice cells, and the solid share of a window of whole cells at its
+  middle, up to the design crest and up to the upper layer's top
+  (``interior_rows``). The block packs denser there than the target asks;
 * the same crane drops released: each is lowered until it first touches,
   then MuJoCo settles it for a few seconds with only it free and the blocks
   under it held fixed, as a block slides into a pocket after the crane lets
@@ -59,7 +64,8 @@ Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
 ``results/tetrapod_variants.csv`` and ``results/tetrapod_variants_solid.csv``
 (the copies and the 4 m copy's map, with ``--variants``),
 ``results/tetrapod_toe.csv`` (the toe), ``results/tetrapod_nest.csv``
-(the second layer), ``results/tetrapod_release.csv`` (the drops released),
+(the second layer), ``results/tetrapod_interior.csv`` (the pattern's own
+density), ``results/tetrapod_release.csv`` (the drops released),
 ``results/tetrapod_release_greedy.csv`` (the second layer they make) and
 ``results/tetrapod_upper_bound.csv`` (the bound, with ``--bound``).
 
@@ -89,7 +95,7 @@ from optimizer.api import optimize
 from optimizer.cpsat import CpSat, overlapping_pairs
 from optimizer.drop import DropWorld, Shape
 from optimizer.hangings import FAMILIES, hanging
-from optimizer.patterns import first_layer, lattice_for
+from optimizer.patterns import first_layer, lattice_for, lay_upper
 from settle import settle
 
 SEEDS = (1, 2, 3)
@@ -116,6 +122,10 @@ BOUND_YAWS = 8
 BOUND_FREE = 8
 BOUND_FLOOR = 0.90
 BOUND_SECONDS = 120.0
+#: The interior patch (``interior_rows``): lattice cells on every side of its centre cell,
+#: and the side, in cells, of the window cut from its middle.
+INTERIOR_RING = 3
+INTERIOR_CELLS = 3
 #: Copies of the scene run with seed 1 (``--variants``): design height and
 #: crest width, m (None keeps the built-in crest). Each copy's time limit is
 #: ``LIMIT`` scaled by its required count over the built-in scene's, so that
@@ -311,6 +321,40 @@ def nest_rows(scene) -> list[dict]:
                      "median_inside_share_percent": round(100 * float(np.median(inside)), 2),
                      "p99_inside_share_percent": round(100 * float(np.quantile(inside, 0.99)), 2),
                      "best_inside_share_percent": round(100 * float(inside.max()), 2)})
+    return rows
+
+
+def interior_rows(scene) -> list[dict]:
+    """How densely the optimizer's own pattern packs tetrapods away from slopes and ends.
+
+    The tuned first layer and its upper layer, each over ``(2 INTERIOR_RING
+    + 1)^2`` lattice cells, are lowered in crane order onto a flat foundation
+    (as the beam search lays them, with nothing in the way). A window of
+    ``INTERIOR_CELLS^2`` whole cells at the patch's centre, from the
+    foundation up to a height, is then cut from the blocks (exact clipping,
+    the shared module's): its solid share, up to the scene's design crest
+    and up to the upper layer's top. A window of whole cells holds the same
+    volume wherever it sits on the lattice, so the figure is the pattern's
+    own, not the window's.
+    """
+    block = scene.block
+    lattice = lattice_for(block, scene.block_type)
+    world = first_layer(lattice, block, ring=INTERIOR_RING)
+    tops = lay_upper(world, block, lattice, lattice.upper, ring=INTERIOR_RING)
+    placed = [(k, block, pose) for k, pose in world.poses().items()]
+    collisions = len(overlapping_pairs(block, [pose for _, _, pose in placed]))
+    a, b = np.array([lattice.w, lattice.q]), np.array([0.0, lattice.p])
+    half = INTERIOR_CELLS / 2
+    rows = []
+    for label, height in (("design crest", scene.height), ("upper layer's top", float(tops.max()))):
+        corners = [[*(s * a + t * b), z] for s in (-half, half) for t in (-half, half) for z in (0.0, height)]
+        window = ConvexPolytope.from_points(np.array(corners))
+        solid = float(volumes_inside(placed, window).sum()) / window.volume
+        rows.append({"up_to": label, "height_m": round(height, 3), "cells": INTERIOR_CELLS ** 2,
+                     "patch_blocks": len(placed), "collisions": collisions,
+                     "area_per_block_m2": round(lattice.area_per_block, 3),
+                     "upper_tops_m": " / ".join(f"{t:.2f}" for t in tops),
+                     "solid_percent": round(100 * solid, 2), "porosity_percent": round(100 * (1 - solid), 2)})
     return rows
 
 
@@ -526,6 +570,10 @@ def main() -> None:
     for r in nest:
         print(r)
     run.csv("tetrapod_nest", nest)
+    interior = interior_rows(scene)
+    for r in interior:
+        print(r)
+    run.csv("tetrapod_interior", interior)
     release = release_rows(scene, first)
     for r in release:
         print(r)

@@ -149,6 +149,10 @@ class DropWorld:
     def __len__(self) -> int:
         return len(self._placed)
 
+    def poses(self) -> dict[int, Pose]:
+        """Where each placed block stands, by key: the inverse of :meth:`of`."""
+        return {k: Pose(pos, shape.quaternion) for k, (shape, pos, _, _) in self._placed.items()}
+
     def _cells(self, x: float, y: float, r: float) -> list[tuple[int, int]]:
         c = self.cell
         return [(i, j) for i in range(int(np.floor((x - r) / c)), int(np.floor((x + r) / c)) + 1)

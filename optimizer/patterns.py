@@ -232,15 +232,25 @@ def first_layer(lattice: InterlockLattice, block: Block, ring: int = 3) -> DropW
     return world
 
 
+def lay_upper(world: DropWorld, block: Block, lattice: InterlockLattice, up: UpperLayer,
+              ring: int = 2) -> np.ndarray:
+    """Lower an upper layer's sites over (2 ring + 1)^2 cells into ``world``, in crane order.
+
+    ``world`` holds the first layer (:func:`first_layer`). Returns the top
+    height (m) of the centre block of each of the layer's two sites.
+    """
+    return np.array(_lay(world, block, lattice, [(up.family_a, up.yaw_a, up.dx, up.dy),
+                                                 (up.family_b, up.yaw_b, up.dx + up.u, up.dy + up.v)],
+                         ring, 10**6))
+
+
 def upper_tops(world: DropWorld, block: Block, lattice: InterlockLattice, up: UpperLayer) -> np.ndarray:
     """Top heights (m) of the centre block of each site of an upper layer.
 
     Its sites over 5 x 5 cells are lowered onto a copy of the first layer
     (``world``, from :func:`first_layer`) in crane order.
     """
-    return np.array(_lay(world.copy(), block, lattice, [(up.family_a, up.yaw_a, up.dx, up.dy),
-                                                        (up.family_b, up.yaw_b, up.dx + up.u, up.dy + up.v)],
-                         2, 10**6))
+    return lay_upper(world.copy(), block, lattice, up)
 
 
 def _upper_penalty(params: np.ndarray, world: DropWorld, block: Block, lattice: InterlockLattice,

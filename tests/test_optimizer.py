@@ -30,6 +30,7 @@ from optimizer.patterns import (
     _lattice_penalty,
     first_layer,
     lattice_for,
+    lay_upper,
     upper_tops,
 )
 from tests.conftest import ROOT, shoha
@@ -147,6 +148,36 @@ def test_tuned_upper_layer_nests_under_the_tetrapod_crest():
     assert first_top == pytest.approx(block.height, abs=2 * tol.drop_resolution)  # on the ground
     assert tops.max() < crest
     assert tops[0] < first_top + block.height - 0.1
+
+
+def test_two_layer_patch_stands_clear_and_its_poses_round_trip():
+    """The pattern's two layers on a patch, as ``tetrapod_limit.interior_rows`` measures them.
+
+    Every block of both layers is in the drop world, no two interpenetrate
+    (FCL), and the world's poses rebuild the same world
+    (:meth:`DropWorld.poses` is the inverse of :meth:`DropWorld.of`).
+    """
+    from geometry.blocks import get_block
+
+    block = get_block("tetrapod:2.0")
+    lat = lattice_for(block, "tetrapod:2.0")
+    world = first_layer(lat, block, ring=1)
+    tops = lay_upper(world, block, lat, lat.upper, ring=1)
+    poses = world.poses()
+    assert len(poses) == 4 * 3 * 3  # two sites per cell, two layers, 3 x 3 cells
+    placed = [(k, block, pose) for k, pose in poses.items()]
+    assert collisions(placed, threshold=0.0) == []
+    lows = {k: pose.apply(block.vertices)[:, 2].min() for k, pose in poses.items()}
+    first = [k for k in poses if k < 10**6]  # lay_upper keys its blocks from 10**6
+    assert len(first) == 2 * 3 * 3
+    assert all(abs(lows[k]) <= 2 * tol.drop_resolution for k in first)  # on the ground
+    assert all(lows[k] > 2 * tol.drop_resolution for k in poses if k not in first)  # on the first layer
+    assert tops.max() > block.height
+    again = DropWorld.of(world.foundation, placed).poses()
+    assert again.keys() == poses.keys()
+    for k, pose in poses.items():
+        np.testing.assert_allclose(again[k].position, pose.position)
+        np.testing.assert_allclose(again[k].quaternion, pose.quaternion)
 
 
 def test_second_pass_lays_the_upper_layer():
