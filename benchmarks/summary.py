@@ -317,6 +317,10 @@ def tetrapod_interior() -> list[str]:
                   for r in rows("tetrapod_interior")])
 
 
+def _pairs(count: str) -> str:
+    return "no two interpenetrating" if int(count) == 0 else f"{count} pairs interpenetrating"
+
+
 def _stable(row: dict[str, str]) -> str:
     return "stable" if row["stable"] == "True" else "not stable"
 
@@ -587,16 +591,17 @@ def tetrapod_block() -> list[str]:
         d = interior["design crest"]
         line = (f"  Away from the slopes and ends the block packs denser than the target asks: the "
                 f"optimizer's own two-layer pattern, laid in crane order on a patch of "
-                f"{d['patch_blocks']} blocks ({d['collisions']} interpenetrating), fills "
+                f"{d['patch_blocks']} blocks ({_pairs(d['collisions'])}), fills "
                 f"{float(d['solid_percent']):.1f} % of a window of {d['cells']} whole lattice cells from "
                 f"the foundation up to the {float(d['height_m']):g} m design crest "
                 f"({float(d['porosity_percent']):.1f} % porosity)")
         top = interior.get("upper layer's top")
         if top:
             line += (f", and {float(top['solid_percent']):.1f} % up to its upper layer's top at "
-                     f"{float(top['height_m']):.2f} m")
-        out.append(line + ". What the scene loses is at its slopes, toes and ends, where the required "
-                   "count assumes the same 50 % as everywhere else.")
+                     f"{float(top['height_m']):g} m")
+        out.append(line + ". The target is not out of reach for want of packing density: in the scene, "
+                   "the required count must spread over slopes and toes that hold little (the bands "
+                   "above), and the blocks resting on the first layer stand above the crest.")
     if near:
         t = near[0]
         samples = (meta("tetrapod_toe") or {}).get("params", {}).get("toe_samples", "many")
