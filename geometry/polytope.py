@@ -132,16 +132,6 @@ class ConvexPolytope:
             raise ValueError("hull surface is not closed: an edge does not join two triangles")
         return n[owner[order].reshape(-1, 2)]
 
-    def box_sum_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Half-spaces of the Minkowski sum with the axis-aligned box ``[-half, half]``.
-
-        An axis-aligned box centred at ``c`` touches this polytope exactly when
-        ``c`` lies in the sum; the ``voxel-any`` porosity rule relies on it.
-        See :class:`PieceStack`, which builds them for many pieces at once.
-        """
-        normals, offsets, _, _ = PieceStack((self,)).planes(np.eye(3), np.zeros(3), half)[0]
-        return normals, offsets
-
     def eroded_box_planes(self, half: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Half-spaces of the set of centres whose box ``[-half, half]`` fits inside.
 

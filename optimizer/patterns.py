@@ -232,6 +232,10 @@ def first_layer(lattice: InterlockLattice, block: Block, ring: int = 3) -> DropW
     return world
 
 
+#: Keys of the blocks :func:`lay_upper` lowers start here, above any first layer's.
+UPPER_KEYS = 10**6
+
+
 def lay_upper(world: DropWorld, block: Block, lattice: InterlockLattice, up: UpperLayer,
               ring: int = 2) -> np.ndarray:
     """Lower an upper layer's sites over (2 ring + 1)^2 cells into ``world``, in crane order.
@@ -241,7 +245,7 @@ def lay_upper(world: DropWorld, block: Block, lattice: InterlockLattice, up: Upp
     """
     return np.array(_lay(world, block, lattice, [(up.family_a, up.yaw_a, up.dx, up.dy),
                                                  (up.family_b, up.yaw_b, up.dx + up.u, up.dy + up.v)],
-                         ring, 10**6))
+                         ring, UPPER_KEYS))
 
 
 def upper_tops(world: DropWorld, block: Block, lattice: InterlockLattice, up: UpperLayer) -> np.ndarray:

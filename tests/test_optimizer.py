@@ -25,6 +25,7 @@ from optimizer.drop import DropWorld, Shape
 from optimizer.hangings import BASE, FAMILIES, hanging
 from optimizer.patterns import (
     TUNED,
+    UPPER_KEYS,
     InterlockLattice,
     UpperLayer,
     _lattice_penalty,
@@ -168,7 +169,7 @@ def test_two_layer_patch_stands_clear_and_its_poses_round_trip():
     placed = [(k, block, pose) for k, pose in poses.items()]
     assert collisions(placed, threshold=0.0) == []
     lows = {k: pose.apply(block.vertices)[:, 2].min() for k, pose in poses.items()}
-    first = [k for k in poses if k < 10**6]  # lay_upper keys its blocks from 10**6
+    first = [k for k in poses if k < UPPER_KEYS]
     assert len(first) == 2 * 3 * 3
     assert all(abs(lows[k]) <= 2 * tol.drop_resolution for k in first)  # on the ground
     assert all(lows[k] > 2 * tol.drop_resolution for k in poses if k not in first)  # on the first layer

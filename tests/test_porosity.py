@@ -9,7 +9,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from geometry.errors import InputError
-from geometry.polytope import ConvexPolytope
+from geometry.polytope import ConvexPolytope, PieceStack
 from geometry.porosity import PorosityTracker, VoxelGrid, exact_filled_volume, porosity
 from geometry.pose import Pose, axis_angle_quat
 from geometry.samples import random_inside, random_quaternion
@@ -173,7 +173,7 @@ def test_box_sum_planes_bound_the_hull_of_the_minkowski_sum(name):
             moved = piece.transformed(pose.rotation, pose.position)
             corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * half
             hull = ConvexPolytope.from_points((moved.vertices[:, None, :] + corners).reshape(-1, 3))
-            own_normals, own_offsets = moved.box_sum_planes(half)
+            own_normals, own_offsets, _, _ = PieceStack((moved,)).planes(np.eye(3), np.zeros(3), half)[0]
             assert np.allclose(normals, own_normals) and np.allclose(offsets, own_offsets)
             assert np.allclose([box_lo, box_hi], hull.aabb)
             lo, hi = hull.aabb
