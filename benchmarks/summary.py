@@ -308,6 +308,18 @@ def tetrapod_upper_bound() -> list[str]:
                    b["best_candidate_inside_percent"]] for b in rows("tetrapod_upper_bound")])
 
 
+def tetrapod_layer() -> list[str]:
+    return table("The one-layer tetrapod scene (`tetrapod_layer.csv`, `tetrapod_layer_variants.csv`)",
+                 "<scene | crest width (m) | seed | required | placed | porosity (%) | wall (s) | "
+                 "collisions | out of tolerance | <stable | CP-SAT gap (%) | inside share (%)",
+                 [[f"`{r['scene']}`", r["crest_width_m"], r["seed"], r["required_blocks"], r["blocks"],
+                   f"{float(r['porosity_percent']):.2f}", r["seconds"], r["collisions"],
+                   r["out_of_tolerance"], r["stable"], r["cpsat_gap_percent"], r["inside_share_percent"]]
+                  for r in rows("tetrapod_layer") + rows("tetrapod_layer_variants")],
+                 "The first rows are the built-in `tetrapod-layer` scene; the rest "
+                 "(`tetrapod_layer_variants.csv`) are copies of it with a narrower crest.")
+
+
 def tetrapod_interior() -> list[str]:
     return table("The optimizer's two-layer pattern away from slopes and ends (`tetrapod_interior.csv`)",
                  "window up to | height (m) | lattice cells | blocks on the patch | collisions | "
@@ -335,7 +347,8 @@ def main() -> None:
               "Gathered by `benchmarks/summary.py` from the files in this folder; each figure is a "
               "median of repeated calls on the machine named at the foot."]]
     parts += [porosity_speed(), paper(), accuracy(), collision(), scaling(), settle_speed(), score_speed(),
-              batch_cluster(), optimizer_quality(), optimizer_scaling(), tetrapod_limit(), tetrapod_losses(),
+              batch_cluster(), optimizer_quality(), optimizer_scaling(), tetrapod_layer(), tetrapod_limit(),
+              tetrapod_losses(),
               tetrapod_solid(), tetrapod_toe(), tetrapod_nest(), tetrapod_interior(), tetrapod_release(),
               tetrapod_release_greedy(), tetrapod_upper_bound(), run_times()]
     text = "\n\n".join("\n".join(p) for p in parts if p)
@@ -465,6 +478,47 @@ def readme_block() -> list[str]:
     return out
 
 
+def _listed(vals: list[str]) -> str:
+    return ", ".join(vals[:-1]) + " and " + vals[-1] if len(vals) > 1 else "".join(vals)
+
+
+def layer_block() -> list[str]:
+    """The README's paragraph on the one-layer tetrapod scene, read from ``tetrapod_layer.csv``."""
+    from geometry.scene import load_scene
+
+    runs = rows("tetrapod_layer")
+    if not runs:
+        return []
+    r0, target = runs[0], load_scene("tetrapod-layer").target_porosity
+    met = all(int(r["blocks"]) == int(r["required_blocks"]) and int(r["collisions"]) == 0
+              and int(r["out_of_tolerance"]) == 0 and r["stable"] == "True"
+              and abs(float(r["porosity_percent"]) - target) <= 1.0 for r in runs)
+    seeds = _listed([r["seed"] for r in runs])
+    line = (f"- **One layer of tetrapods {'meets' if met else 'misses'} its target.** On the built-in "
+            f"`tetrapod-layer` scene (H = 2 m tetrapods in one layer: a {float(r0['height_m']):g} m mound "
+            f"with a {float(r0['crest_width_m']):g} m crest, {r0['required_blocks']} required at "
+            f"{target:g} %), `shoha optimize tetrapod-layer` ")
+    if met:
+        line += (f"places all {r0['required_blocks']} blocks for seeds {seeds}, valid (no collisions, none "
+                 f"out of tolerance, stable), at ")
+    else:
+        line += (f"places {_listed([r['blocks'] for r in runs])} blocks for seeds {seeds} "
+                 f"({_listed([r['collisions'] for r in runs])} collisions, "
+                 f"{_listed([r['out_of_tolerance'] for r in runs])} out of tolerance, "
+                 f"{_listed([_stable(r) for r in runs])}) at ")
+    line += (f"{_listed([format(float(r['porosity_percent']), '.2f') for r in runs])} % porosity in "
+             f"{_listed([r['seconds'] for r in runs])} s, CP-SAT gap at most "
+             f"{max(float(r['cpsat_gap_percent']) for r in runs):.0e} % (`benchmarks/tetrapod_limit.py`).")
+    copies = rows("tetrapod_layer_variants")
+    if copies:
+        line += (" A narrower crest leaves less interior, where the lattice packs densely, to make up for "
+                 "the slopes and toes, which hold little: with seed 1, a crest of "
+                 + "; ".join(f"{float(r['crest_width_m']):g} m places {r['blocks']} of "
+                             f"{r['required_blocks']} ({float(r['porosity_percent']):.1f} %)" for r in copies)
+                 + ".")
+    return [line]
+
+
 def tetrapod_block() -> list[str]:
     """The README's paragraph on the tetrapod scene's limit, every figure read from a result file."""
     runs, toe = rows("tetrapod_limit"), rows("tetrapod_toe")
@@ -481,18 +535,18 @@ def tetrapod_block() -> list[str]:
     required = float(r0["required_blocks"])
     full = all(float(r["blocks"]) >= required for r in runs)
     if full:
-        head = (f"- **Tetrapods reach their count, not their porosity.** On the built-in `tetrapod` scene "
-                f"(H = 2 m tetrapods, a 3.5 m mound, {required:.0f} required at 50 %), "
+        head = (f"- **In two layers, tetrapods reach their count, not their porosity.** On the built-in "
+                f"`tetrapod` scene (H = 2 m tetrapods, a 3.5 m mound, {required:.0f} required at 50 %), "
                 f"`shoha optimize tetrapod` places all {required:.0f} blocks for seeds {each('seed')}, "
                 f"valid, at {each('porosity_percent', 2)} % porosity: more than 1 point above the target")
         then = "so the full count gives"
     else:
-        head = (f"- **Tetrapods fall short of their count.** On the built-in `tetrapod` scene (H = 2 m "
-                f"tetrapods, a 3.5 m mound, {required:.0f} required at 50 %), "
+        head = (f"- **In two layers, tetrapods fall short of their count.** On the built-in `tetrapod` "
+                f"scene (H = 2 m tetrapods, a 3.5 m mound, {required:.0f} required at 50 %), "
                 f"`shoha optimize tetrapod` places {each('blocks')} blocks for seeds {each('seed')} "
                 f"({each('porosity_percent', 1)} %): valid otherwise, and it says so in plain words")
         then = "so even the full count would give"
-    out = [head + " (`benchmarks/tetrapod_limit.py`; tables in "
+    out = [*layer_block(), head + " (`benchmarks/tetrapod_limit.py`; tables in "
            "[`summary.md`](benchmarks/results/summary.md)).",
            f"  With the count fixed, porosity is 1 − N·V·f / V_B, where f is the share of the blocks' "
            f"volume inside the design prism; {r0['required_blocks']} blocks come within 1 point of 50 % "

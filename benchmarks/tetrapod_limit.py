@@ -31,8 +31,9 @@ machine and code as everything else:
   the second layer under its crest, but its slopes then hold fewer blocks
   than it requires, and a wider crest adds about as many blocks as it
   requires; the 6 m mound, with layers laid on the first two, falls
-  further short. ``make bench`` leaves this out for time (about 15
-  minutes more: the copies took 864 s of a 1037 s run);
+  further short. ``make bench`` leaves this out for time (about 12
+  minutes more: the copies, the one-layer scene's among them, took 738 s
+  of a 1143 s run);
 * the second layer: random drops, in each hanging with a random yaw and in
   free orientation, onto a patch of the tuned first layer (the crown/level
   lattice the optimizer lays on the foundation), as the crane lowers them.
@@ -44,6 +45,10 @@ machine and code as everything else:
   lattice cells, and the solid share of a window of whole cells at its
   middle, up to the design crest and up to the upper layer's top
   (``interior_rows``). The block packs denser there than the target asks;
+* ``shoha optimize tetrapod-layer`` for the same seeds: one layer of the
+  same tetrapods in a 2 m mound with a 10 m crest, where the interior makes
+  up for the slopes and toes; with ``--variants``, seed 1 on copies of it
+  with narrower crests;
 * the same crane drops released: each is lowered until it first touches,
   then MuJoCo settles it for a few seconds with only it free and the blocks
   under it held fixed, as a block slides into a pocket after the crane lets
@@ -66,7 +71,9 @@ Writes ``results/tetrapod_limit.{csv,json}`` (the runs),
 ``results/tetrapod_toe.csv`` (the toe), ``results/tetrapod_nest.csv``
 (the second layer), ``results/tetrapod_interior.csv`` (the pattern's own
 density), ``results/tetrapod_release.csv`` (the drops released),
-``results/tetrapod_release_greedy.csv`` (the second layer they make) and
+``results/tetrapod_release_greedy.csv`` (the second layer they make),
+``results/tetrapod_layer.csv`` and ``results/tetrapod_layer_variants.csv`` (the one-layer
+scene, and its copies with ``--variants``) and
 ``results/tetrapod_upper_bound.csv`` (the bound, with ``--bound``).
 
 Run::
@@ -76,6 +83,7 @@ Run::
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 from importlib import resources
@@ -131,6 +139,10 @@ INTERIOR_CELLS = 3
 #: ``LIMIT`` scaled by its required count over the built-in scene's, so that
 #: a larger copy is not cut short by the clock alone.
 VARIANTS = ((3.75, None), (4.0, None), (4.0, 6.0), (4.0, 8.0), (6.0, None))
+#: The one-layer scene, run for ``SEEDS``; with ``--variants``, copies of it with these
+#: crest widths (m), seed 1.
+LAYER = "tetrapod-layer"
+LAYER_CRESTS = (4.0, 6.0, 8.0)
 #: Bands of the solid-share map (m), and its voxel edge (m).
 BAND = 1.0
 VOXEL = 0.05
@@ -182,18 +194,22 @@ def face_losses(scene, placed, inside: np.ndarray) -> dict:
     return out
 
 
-def variant(scene_text: str, height: float, crest: float | None = None):
-    """The built-in ``tetrapod`` scene, ``height`` m high and ``crest`` m wide; its required count follows."""
-    edits = {"height_m = 3.5\n": f"height_m = {height}\n"}
-    name = f"tetrapod-{height}m"
-    if crest is not None:
-        edits["crest_width_m = 4.0\n"] = f"crest_width_m = {crest}\n"
-        name += f"-crest-{crest}m"
-    for old, new in edits.items():
-        if old not in scene_text:
-            raise ValueError(f"tetrapod.toml: no {old.strip()!r} line to change")
-        scene_text = scene_text.replace(old, new)
-    return parse_scene(scene_text.replace('name = "tetrapod"', f'name = "{name}"'), name, None)
+def variant(scene_text: str, height: float | None = None, crest: float | None = None):
+    """A built-in scene's TOML with its design ``height`` and ``crest`` width (m) changed, where given;
+    its required count follows. The copy is named after both."""
+    name = re.search(r'^name = "([^"]+)"$', scene_text, re.M)
+    if name is None:
+        raise ValueError("scene file: no name line")
+    copy = name[1]
+    for key, value, tag in (("height_m", height, "{}m"), ("crest_width_m", crest, "crest-{}m")):
+        if value is None:
+            continue
+        scene_text, n = re.subn(rf"^{key} = .*$", f"{key} = {value}", scene_text, flags=re.M)
+        if n != 1:
+            raise ValueError(f"{copy}: no single {key} line to change")
+        copy += "-" + tag.format(value)
+    scene_text = scene_text.replace(name[0], f'name = "{copy}"')
+    return parse_scene(scene_text, copy, None)
 
 
 def solid_rows(scene, placed) -> list[dict]:
@@ -240,6 +256,7 @@ def run_row(scene, seed: int, limit: float = LIMIT) -> tuple[dict, list]:
     rest_needed = rest_share_needed(scene, float(inside[ground].sum()), int(ground.sum()))
     projected = 100 * (1 - scene.required_blocks * block.volume * f / scene.design_volume)
     return {
+        "scene": scene.name,
         "seed": seed,
         "height_m": scene.height,
         "crest_width_m": scene.crest_width,
@@ -562,6 +579,20 @@ def main() -> None:
                 solid = solid_rows(copy, placed)
         run.csv("tetrapod_variants", copies)
         run.csv("tetrapod_variants_solid", solid)
+    layer = load_scene(LAYER)
+    layer_rows = [run_row(layer, seed)[0] for seed in SEEDS]
+    for r in layer_rows:
+        print(r, flush=True)
+    run.csv("tetrapod_layer", layer_rows)
+    if "--variants" in sys.argv[1:]:
+        text = (resources.files("geometry") / "scenes" / f"{LAYER}.toml").read_text()
+        copies = []
+        for crest in LAYER_CRESTS:
+            copy = variant(text, crest=crest)
+            limit = LIMIT * max(1.0, copy.required_blocks / layer.required_blocks)
+            copies.append(run_row(copy, 1, limit)[0])
+            print(copies[-1], flush=True)
+        run.csv("tetrapod_layer_variants", copies)
     toe = toe_rows(scene)
     for r in toe:
         print(r)
