@@ -527,8 +527,7 @@ def tetrapod_block() -> list[str]:
     r0 = runs[0]
 
     def each(key: str, digits: int | None = None) -> str:
-        vals = [r[key] if digits is None else f"{float(r[key]):.{digits}f}" for r in runs]
-        return ", ".join(vals[:-1]) + " and " + vals[-1]
+        return _listed([r[key] if digits is None else f"{float(r[key]):.{digits}f}" for r in runs])
 
     near = [t for t in toe if t["best_inside_share_percent"] not in ("", None)
             and float(t["best_inside_share_percent"]) < float(r0["inside_share_needed_percent"])]
