@@ -139,10 +139,10 @@ INTERIOR_CELLS = 3
 #: ``LIMIT`` scaled by its required count over the built-in scene's, so that
 #: a larger copy is not cut short by the clock alone.
 VARIANTS = ((3.75, None), (4.0, None), (4.0, 6.0), (4.0, 8.0), (6.0, None))
-#: The one-layer scene, run for ``SEEDS``; with ``--variants``, copies of it with these
-#: crest widths (m), seed 1.
+#: The one-layer scene, run for ``SEEDS``; with ``--variants``, copies of it as
+#: ``VARIANTS`` (its height kept, these crest widths).
 LAYER = "tetrapod-layer"
-LAYER_CRESTS = (4.0, 6.0, 8.0)
+LAYER_VARIANTS = ((None, 4.0), (None, 6.0), (None, 8.0))
 #: Bands of the solid-share map (m), and its voxel edge (m).
 BAND = 1.0
 VOXEL = 0.05
@@ -210,6 +210,24 @@ def variant(scene_text: str, height: float | None = None, crest: float | None = 
         copy += "-" + tag.format(value)
     scene_text = scene_text.replace(name[0], f'name = "{copy}"')
     return parse_scene(scene_text, copy, None)
+
+
+def run_copies(base, edits) -> list[tuple]:
+    """Seed 1 on copies of the built-in scene ``base``, one per ``(height, crest)`` of ``edits``
+    (:func:`variant`; None keeps the scene's own).
+
+    Each copy's time limit is ``LIMIT`` scaled by its required count over
+    ``base``'s, so that a larger copy is not cut short by the clock alone.
+    Returns ``(copy, row, placed)`` for each, ``row, placed`` from :func:`run_row`.
+    """
+    text = (resources.files("geometry") / "scenes" / f"{base.name}.toml").read_text()
+    out = []
+    for height, crest in edits:
+        copy = variant(text, height, crest)
+        row, placed = run_row(copy, 1, LIMIT * max(1.0, copy.required_blocks / base.required_blocks))
+        print(row, flush=True)
+        out.append((copy, row, placed))
+    return out
 
 
 def solid_rows(scene, placed) -> list[dict]:
@@ -568,31 +586,17 @@ def main() -> None:
     run.csv("tetrapod_limit", rows)
     run.csv("tetrapod_solid", solid_rows(scene, first))
     if "--variants" in sys.argv[1:]:
-        text = (resources.files("geometry") / "scenes" / "tetrapod.toml").read_text()
-        copies, solid = [rows[0]], []
-        for height, crest in VARIANTS:
-            copy = variant(text, height, crest)
-            row, placed = run_row(copy, 1, LIMIT * max(1.0, copy.required_blocks / scene.required_blocks))
-            copies.append(row)
-            print(row, flush=True)
-            if (height, crest) == (4.0, None):
-                solid = solid_rows(copy, placed)
-        run.csv("tetrapod_variants", copies)
-        run.csv("tetrapod_variants_solid", solid)
+        copies = run_copies(scene, VARIANTS)
+        run.csv("tetrapod_variants", [rows[0]] + [row for _, row, _ in copies])
+        copy, _, placed = copies[VARIANTS.index((4.0, None))]
+        run.csv("tetrapod_variants_solid", solid_rows(copy, placed))
     layer = load_scene(LAYER)
     layer_rows = [run_row(layer, seed)[0] for seed in SEEDS]
     for r in layer_rows:
         print(r, flush=True)
     run.csv("tetrapod_layer", layer_rows)
     if "--variants" in sys.argv[1:]:
-        text = (resources.files("geometry") / "scenes" / f"{LAYER}.toml").read_text()
-        copies = []
-        for crest in LAYER_CRESTS:
-            copy = variant(text, crest=crest)
-            limit = LIMIT * max(1.0, copy.required_blocks / layer.required_blocks)
-            copies.append(run_row(copy, 1, limit)[0])
-            print(copies[-1], flush=True)
-        run.csv("tetrapod_layer_variants", copies)
+        run.csv("tetrapod_layer_variants", [row for _, row, _ in run_copies(layer, LAYER_VARIANTS)])
     toe = toe_rows(scene)
     for r in toe:
         print(r)
