@@ -237,7 +237,7 @@ def shake_fit() -> tuple[float, float]:
         return u.surface_area() / u.volume() ** (2.0 / 3.0)
 
     target = SHAKE_4T_AREA / SHAKE_4T_VOLUME ** (2.0 / 3.0)
-    leg = brentq(lambda x: shape_ratio(x) - target, 0.05, 0.6, xtol=1e-12)
+    leg = brentq(lambda x: shape_ratio(x) - target, 0.05, 0.6, xtol=tol.fit)
     unit_volume = _union_of_hulls(_shake_pieces(1.0, leg)).volume()
     return (SHAKE_4T_VOLUME / unit_volume) ** (1.0 / 3.0), leg
 

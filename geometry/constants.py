@@ -56,6 +56,56 @@ class Tolerances:
         height and a small part of a leg's thickness, so a block this close
         bears on its neighbour once the pile settles, while a block a leg's
         width away is a neighbour, not a contact.
+    relative : float, dimensionless
+        Relative slack for a float that should be a whole number before it is
+        rounded up or down: the required block count ``ceil((1 - target) V /
+        V_block)`` (scene.py), a voxel count ``ceil(extent / size)``
+        (porosity.py), and the lattice tuner's check that its penalty is the
+        bare area (patterns.py). Products and quotients of a few floats are
+        off by ~1e-15 relative; 1e-9 keeps 75.0000000000001 from becoming 76
+        and is far below any real fraction of a block or voxel.
+    time_slack : float, dimensionless
+        Relative slack on the settle's rest window: simulated times are sums
+        of float time steps (settle.base.RestMonitor).
+    facet_rounding : float, dimensionless
+        Coplanar triangles of one hull facet have equations that agree to
+        ~1e-15 of the part's size, distinct facets differ by far more: plane
+        keys are rounded to 1e-9 of the size (polytope.py).
+    length_floor : float, metres
+        A size below this is taken as zero, to keep a division by a part's
+        size defined (polytope.py).
+    orientation : float, dimensionless
+        A face counts as facing up or down when the z part of its normal
+        exceeds this fraction of the normal's length (drop.py); vertical faces
+        (rounding noise of ~1e-16) count as neither.
+    parallel : float, square metres
+        Two projected edges are parallel, and have no single crossing, when
+        the cross product of their directions is below this (drop.py): edges
+        are decimetres to metres long, so 1e-12 m^2 is rounding noise.
+    grid_edge : float, dimensionless
+        Fraction of a cell by which a point on the far edge of a height field
+        is kept inside its last cell (scene.Foundation.height_at).
+    energy : float, energy units
+        An annealing move improves the best build only by more than this:
+        the energy sums porosity points and counts, and rounding in the
+        incremental update is ~1e-13.
+    objective_volume : float, cubic metres
+        The CP-SAT bound's selection beats the heuristic's ground layer only
+        by more than this; its objective is rounded to 1e-6 m^3, and 1e-9
+        m^3 separates a real gain from that rounding.
+    points : float, score points
+        Score weights that should add up to 100 may be off by rounding.
+    fit : float, circumradii
+        Convergence tolerance of the fit of the Shake Block's leg length
+        (brentq, blocks.shake_fit): the block's shape to 1e-12 of its size.
+    tuning : float, dimensionless
+        Convergence tolerance of the lattice tuner's differential evolution
+        (relative spread of its population's energies, patterns.py).
+    prism_rtol : float, dimensionless
+        Relative difference between a piece's volume and (outline area) x (y
+        extent) tolerated for it to count as a prism along y (settle/section.py):
+        a prism meets it to float precision, a chamfer of a thousandth of the
+        piece's size does not.
     """
 
     quaternion_norm: float = 1e-6
@@ -67,6 +117,19 @@ class Tolerances:
     rest_time: float = 0.2
     plane_angle: float = 1e-6
     contact_gap: float = 2e-2
+    relative: float = 1e-9
+    time_slack: float = 1e-9
+    facet_rounding: float = 1e-9
+    length_floor: float = 1e-12
+    orientation: float = 1e-9
+    parallel: float = 1e-12
+    grid_edge: float = 1e-6
+    energy: float = 1e-12
+    objective_volume: float = 1e-9
+    points: float = 1e-9
+    fit: float = 1e-12
+    tuning: float = 1e-8
+    prism_rtol: float = 1e-6
 
 
 tol = Tolerances()

@@ -261,9 +261,10 @@ def _distinct_planes(equations: np.ndarray, scale: float) -> tuple[np.ndarray, n
     """Merge qhull's per-triangle equations ``[n, -d]`` into distinct planes."""
     normals = equations[:, :3]
     offsets = -equations[:, 3]
-    # Round in units of 1e-9 of the part's size: coplanar triangles of one facet
-    # agree to ~1e-15, distinct facets differ by far more.
-    key = np.round(np.hstack([normals, offsets[:, None] / max(scale, 1e-12)]) * 1e9)
+    # Round in units of tol.facet_rounding of the part's size: coplanar triangles of one
+    # facet agree to ~1e-15, distinct facets differ by far more.
+    key = np.round(np.hstack([normals, offsets[:, None] / max(scale, tol.length_floor)])
+                   / tol.facet_rounding)
     _, first = np.unique(key, axis=0, return_index=True)
     first = np.sort(first)
     return normals[first].copy(), offsets[first].copy()

@@ -233,7 +233,7 @@ class VoxelGrid:
                 raise InputError("give divisions or a voxel size, not both")
             if not (np.isfinite(voxel_size) and voxel_size > 0):
                 raise InputError(f"voxel size must be a positive number of metres, not {voxel_size}")
-            shape = np.maximum(1, np.ceil(extent / voxel_size - 1e-9)).astype(np.int64)
+            shape = np.maximum(1, np.ceil(extent / voxel_size - tol.relative)).astype(np.int64)
             size = np.full(3, float(voxel_size))
         else:
             divisions = 100 if divisions is None else divisions

@@ -9,6 +9,7 @@ It is not a placement algorithm; the optimizer is.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .blocks import Block
 from .collision import CollisionWorld
@@ -18,12 +19,8 @@ from .tolerance import TrapezoidalPrism
 
 
 def random_quaternion(rng: np.random.Generator) -> np.ndarray:
-    """A uniformly random unit quaternion ``[w, x, y, z]`` (Shoemake's method)."""
-    u1, u2, u3 = rng.random(3)
-    a, b = np.sqrt(1 - u1), np.sqrt(u1)
-    q = np.array([a * np.sin(2 * np.pi * u2), a * np.cos(2 * np.pi * u2),
-                  b * np.sin(2 * np.pi * u3), b * np.cos(2 * np.pi * u3)])
-    return q if q[0] >= 0 else -q
+    """A uniformly random unit quaternion ``[w, x, y, z]`` with ``w >= 0`` (scipy's ``Rotation.random``)."""
+    return Rotation.random(rng=rng).as_quat(canonical=True, scalar_first=True)
 
 
 def random_inside(

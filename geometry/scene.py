@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from .blocks import Block, get_block
+from .constants import tol
 from .errors import InputError
 from .tolerance import Allowance, TrapezoidalPrism, design_prism, tolerance_prism
 
@@ -83,8 +84,8 @@ class Foundation:
         if self.kind != "rough":
             return np.zeros(len(xy))
         xs, ys, h = self.grid
-        fx = np.clip((xy[:, 0] - xs[0]) / self.cell, 0, len(xs) - 1.000001)
-        fy = np.clip((xy[:, 1] - ys[0]) / self.cell, 0, len(ys) - 1.000001)
+        fx = np.clip((xy[:, 0] - xs[0]) / self.cell, 0, len(xs) - 1 - tol.grid_edge)
+        fy = np.clip((xy[:, 1] - ys[0]) / self.cell, 0, len(ys) - 1 - tol.grid_edge)
         i, j = fx.astype(int), fy.astype(int)
         tx, ty = fx - i, fy - j
         return (
@@ -288,7 +289,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     if f_kind == "rough" and (extent[1] - extent[0]) * (extent[3] - extent[2]) / cell**2 > 4e6:
         raise InputError(f"{source}: [foundation] cell_m = {cell} m makes too fine a height field")
 
-    default_required = math.ceil((1 - target / 100) * scene.design_volume / block.volume - 1e-9)
+    default_required = math.ceil((1 - target / 100) * scene.design_volume / block.volume - tol.relative)
     required = data.get("required_blocks", default_required)
     if not isinstance(required, int) or isinstance(required, bool) or not 0 <= required <= 100_000:
         raise InputError(f"{source}: required_blocks must be an integer from 0 to 100000")
