@@ -4,9 +4,11 @@
 >>> result = settle(scene, layout.placed(), seconds=2.0, seed=0)  # doctest: +SKIP
 >>> result.stable, result.max_displacement_m          # doctest: +SKIP
 
-``settle`` is the one entry point; the physics engine is a backend instance
-(:class:`MujocoBackend` for 3D scenes, :class:`PymunkBackend` for section
-scenes), chosen by the scene's kind when none is given.
+``settle`` (:mod:`settle.run`) is the one entry point; the physics engine is
+a backend instance (:class:`MujocoBackend` for 3D scenes, :class:`PymunkBackend`
+for section scenes), chosen by the scene's kind when none is given. The
+interface the backends implement is :mod:`settle.base`, which imports no
+backend.
 """
 
 from .base import (
@@ -17,10 +19,10 @@ from .base import (
     SettleBody,
     SettleResult,
     Thresholds,
-    settle,
 )
 from .mujoco_backend import MujocoBackend
 from .pymunk_backend import PymunkBackend
+from .run import default_backend, settle
 
 __all__ = [
     "DEFAULT_SECONDS",
@@ -32,5 +34,6 @@ __all__ = [
     "SettleBody",
     "SettleResult",
     "Thresholds",
+    "default_backend",
     "settle",
 ]

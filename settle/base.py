@@ -1,15 +1,11 @@
-"""The physics settle: one entry point, backends behind it, and the verdict.
+"""The physics settle's interface: what a backend is given and returns, and the verdict.
 
 A settle runs a short rigid-body simulation from the given poses and reports
-how far each block moved (issue 3). :func:`settle` is the one public entry
-point. The physics engine is a :class:`SettleBackend`, passed in as an
-instance, as optuna passes samplers (STYLE.md, "Strategies"):
-
->>> settle(scene, placed)                                   # doctest: +SKIP
->>> settle(scene, placed, backend=MujocoBackend(timestep=1e-3))  # doctest: +SKIP
-
-With ``backend=None`` the scene's kind picks it: MuJoCo for ``"3d"`` scenes,
-pymunk for ``"section"`` scenes (CONTRACT.md, "Built-in names"; docs/settle.md).
+how far each block moved. The physics engine is a :class:`SettleBackend`,
+passed in as an instance, as optuna passes samplers (STYLE.md,
+"Strategies"). This module knows no backend: :func:`settle.run.settle`, the
+one entry point, picks one by the scene's kind when none is given, so the
+backends import this module and it imports none of them.
 
 The verdict (issue 3, "The verdict"): a block is stable if its centroid moved
 at most ``0.05 H`` and it turned at most 5 degrees, ``H`` being the block's
@@ -21,9 +17,8 @@ from __future__ import annotations
 
 import abc
 import math
-import time
 from collections import deque
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple
 
@@ -32,7 +27,7 @@ import numpy as np
 from geometry.blocks import Block
 from geometry.constants import tol
 from geometry.errors import InputError
-from geometry.pose import Pose, quat_multiply
+from geometry.pose import Pose
 from geometry.scene import Scene
 
 #: Simulated time of a settle, seconds (issue 3: "2 s by default").
@@ -177,8 +172,8 @@ class RestMonitor:
         samples = self._samples
         samples.append((t, np.array(positions, dtype=float), np.array(quaternions, dtype=float)))
         # Keep the newest sample at or before t - window as the reference
-        # (with a relative 1e-9 of slack: times are sums of float steps).
-        window = self.window * (1 - 1e-9)
+        # (with tol.time_slack: times are sums of float steps).
+        window = self.window * (1 - tol.time_slack)
         while len(samples) > 1 and t - samples[1][0] >= window:
             samples.popleft()
         t0, p0, q0 = samples[0]
@@ -383,131 +378,3 @@ class SettleResult:
         return (f"{verdict}: {len(self.blocks)} blocks, max displacement {self.max_displacement_m:.4f} m, "
                 f"max rotation {self.max_rotation_deg:.2f} deg ({self.backend}, "
                 f"{self.simulated_seconds:.2f} s simulated in {self.seconds:.2f} s)")
-
-
-def default_backend(scene: Scene) -> SettleBackend:
-    """The backend a scene's kind calls for: MuJoCo for ``3d``, pymunk for ``section``."""
-    if scene.kind == "section":
-        from .pymunk_backend import PymunkBackend
-
-        return PymunkBackend()
-    from .mujoco_backend import MujocoBackend
-
-    return MujocoBackend()
-
-
-def settle(
-    scene: Scene,
-    placed: Sequence[tuple[int, Block, Pose]],
-    seconds: float = DEFAULT_SECONDS,
-    seed: int | np.random.Generator = 0,
-    backend: SettleBackend | None = None,
-    movable: Collection[int] | None = None,
-    thresholds: Thresholds | None = None,
-    early_stop: bool = True,
-    progress: Progress | None = None,
-) -> SettleResult:
-    """Settle blocks under gravity and judge whether they stand.
-
-    Parameters
-    ----------
-    scene : Scene
-        Its foundation is the ground the blocks stand on.
-    placed : sequence of (id, Block, Pose)
-        The blocks and their initial poses (``Layout.placed()``).
-    seconds : float
-        Simulated time, seconds (0 < seconds <= 60).
-    seed : int or numpy.random.Generator
-        Seeds the small initial kick of each free block (``KICK_SPEED``).
-        The same seed gives a bit-identical result.
-    backend : SettleBackend, optional
-        The physics engine; by default the one the scene's kind calls for.
-    movable : collection of int, optional
-        Ids of the blocks that are free bodies; the others are held fixed.
-        All blocks are free by default.
-    thresholds : Thresholds, optional
-        The stability thresholds; issue 3's by default.
-    early_stop : bool
-        Stop once every free block has come to rest (see ``tol.rest_time``).
-    progress : callable, optional
-        Called now and then with (simulated seconds, ``seconds``).
-
-    Returns
-    -------
-    SettleResult
-
-    Raises
-    ------
-    InputError
-        For bad arguments: duplicate ids, unknown ids in ``movable``, a time
-        out of range, or blocks the backend cannot model.
-    """
-    start = time.perf_counter()
-    thresholds = thresholds if thresholds is not None else Thresholds()
-    if not isinstance(seconds, (int, float)) or not 0 < seconds <= MAX_SECONDS:
-        raise InputError(f"settle time must be in (0, {MAX_SECONDS:g}] seconds, not {seconds!r}")
-    ids = [int(k) for k, _, _ in placed]
-    if len(set(ids)) != len(ids):
-        raise InputError("settle: block ids must be unique")
-    free = set(ids) if movable is None else {int(k) for k in movable}
-    unknown = sorted(free - set(ids))
-    if unknown:
-        raise InputError(f"settle: movable block {unknown[0]} is not in the layout")
-    backend = backend if backend is not None else default_backend(scene)
-    if not isinstance(backend, SettleBackend):
-        raise InputError(f"settle: backend must be a SettleBackend instance, not {type(backend).__name__}")
-
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    bodies = []
-    for key, block, pose in placed:
-        v = w = np.zeros(3)
-        if key in free:
-            # A random direction for the centroid and for the spin, each at
-            # KICK_SPEED (for the spin, at the block's outermost point).
-            v, w = _unit(rng.normal(size=3)), _unit(rng.normal(size=3))
-            v, w = KICK_SPEED * v, KICK_SPEED / block.bounding_radius * w
-        bodies.append(SettleBody(int(key), block, pose, key in free, v, w))
-    backend.check(scene, bodies)
-
-    if any(b.movable for b in bodies):
-        run = backend.simulate(scene, bodies, float(seconds), early_stop, progress)
-    else:
-        run = Run({}, 0.0, 0, True)
-
-    records = []
-    for body in bodies:
-        final = run.poses.get(body.id, body.pose) if body.movable else body.pose
-        displacement = float(np.linalg.norm(final.position - body.pose.position))
-        rotation = float(np.degrees(rotation_between(body.pose.quaternion, final.quaternion)))
-        ok = (displacement <= thresholds.displacement_limit(body.block)
-              and rotation <= thresholds.rotation_deg)
-        records.append(BlockSettle(body.id, final, displacement, rotation, bool(ok), body.movable))
-    return SettleResult(
-        stable=all(r.stable for r in records),
-        blocks=records,
-        max_displacement_m=max((r.displacement_m for r in records), default=0.0),
-        max_rotation_deg=max((r.rotation_deg for r in records), default=0.0),
-        seconds=time.perf_counter() - start,
-        simulated_seconds=run.simulated_seconds,
-        steps=run.steps,
-        at_rest=run.at_rest,
-        peak_speed=run.peak_speed,
-        backend=backend.name,
-        thresholds=thresholds,
-    )
-
-
-def rotation_between(q0: np.ndarray, q1: np.ndarray) -> float:
-    """Angle in radians, in [0, pi], of the rotation taking orientation ``q0`` to ``q1``.
-
-    Both are unit quaternions, scalar first ``[w, x, y, z]``.
-    """
-    conj = np.array([q0[0], -q0[1], -q0[2], -q0[3]])
-    q = quat_multiply(q1, conj)
-    # atan2 keeps full precision for small angles, where arccos(w) loses half
-    # the digits.
-    return float(2 * np.arctan2(np.linalg.norm(q[1:]), abs(q[0])))
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    return v / np.linalg.norm(v)

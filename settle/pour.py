@@ -17,7 +17,8 @@ from geometry.pose import Pose, axis_angle_quat
 from geometry.samples import random_quaternion
 from geometry.scene import Scene
 
-from .base import SettleBackend, settle
+from .base import SettleBackend
+from .run import settle
 
 #: Gap between a dropped block's lowest possible point and the pile top, m.
 DROP_GAP = 0.05

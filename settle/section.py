@@ -32,9 +32,8 @@ from geometry.pose import Pose, axis_angle_quat
 from geometry.scene import Scene
 
 #: Relative difference between a piece's volume and (outline area) x (y
-#: extent) tolerated for it to count as a prism along y; a prism meets it to
-#: float precision, a chamfer of a thousandth of the piece's size does not.
-PRISM_RTOL = 1e-6
+#: extent) tolerated for it to count as a prism along y (tol.prism_rtol).
+PRISM_RTOL = tol.prism_rtol
 
 
 @cache
