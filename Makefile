@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 OUT    := out
 
-.PHONY: demo test test-slow bench lint clean
+.PHONY: demo test test-slow bench lint screenshots clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -40,6 +40,10 @@ test-slow: $(VENV)/.installed-test
 # About 27 minutes on 2 cores (26.8 min in benchmarks/results/run_all.csv).
 bench: $(VENV)/.installed-test
 	$(BIN)/python benchmarks/run_all.py
+
+# The README's pictures: the browser tests' screenshots, copied to docs/.
+screenshots: $(VENV)/.installed-test
+	$(BIN)/python -m pytest -q -m browser --screenshots docs
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check geometry settle optimizer benchmarks tests

@@ -5,7 +5,7 @@ Target: on two cores, ``shoha batch score`` of 200 saves on a 2-worker
 interrupted, and gives the same rows as ``--workers 2``.
 
 The saves are made from the 75-block reference (``benchmarks/layouts/mini-75.json``)
-by ``optimizer.perturb.trainee_saves`` with seed 0: a few blocks nudged in each,
+by ``tests.perturb.trainee_saves`` with seed 0: a few blocks nudged in each,
 sometimes the last few missing, every tenth with a named fault. The same
 seed gives the same 200 saves.
 
@@ -42,7 +42,7 @@ from common import MINI_75, Run
 
 from geometry.layout import read_layout, write_layout
 from optimizer.batch import SCORE_COLUMNS, TIMING_COLUMNS, RowFile
-from optimizer.perturb import trainee_saves
+from tests.perturb import trainee_saves
 
 SHOHA = str(Path(sys.executable).parent / "shoha")
 

@@ -27,10 +27,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 from common import Run, mini  # noqa: E402
 
 from geometry.checks import check_layout  # noqa: E402
-from optimizer.anneal import Annealing  # noqa: E402
 from optimizer.api import optimize  # noqa: E402
-from optimizer.beam import BeamSearch  # noqa: E402
-from optimizer.physics import raised_check, stands  # noqa: E402
+from optimizer.search.anneal import Annealing  # noqa: E402
+from optimizer.search.beam import BeamSearch  # noqa: E402
+from optimizer.search.physics import raised_check, stands  # noqa: E402
 from settle import settle  # noqa: E402
 from settle.pour import pour  # noqa: E402
 

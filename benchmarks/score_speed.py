@@ -41,9 +41,9 @@ from pathlib import Path
 from common import MINI_75, Run, timed
 
 from geometry.layout import Layout, Placement, read_layout, write_layout
-from optimizer.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
 from optimizer.score import Reference, score
 from settle import settle
+from tests.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
 
 REPEATS = 5
 TARGET_SECONDS = 3.0

@@ -100,10 +100,10 @@ from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene, parse_scene
 from optimizer.api import optimize
-from optimizer.cpsat import CpSat, overlapping_pairs
-from optimizer.drop import DropWorld, Shape
-from optimizer.hangings import FAMILIES, hanging
-from optimizer.patterns import first_layer, lattice_for, lay_upper
+from optimizer.search.cpsat import CpSat, overlapping_pairs
+from optimizer.search.drop import DropWorld, Shape
+from optimizer.search.hangings import FAMILIES, hanging
+from optimizer.search.patterns import first_layer, lattice_for, lay_upper
 from settle import settle
 
 SEEDS = (1, 2, 3)
@@ -525,7 +525,7 @@ def upper_bound_row(scene, placed) -> dict:
     them alone, at every point of a ``BOUND_STEP`` grid over the tolerance
     zone, in each hanging at ``BOUND_YAWS`` yaws and in ``BOUND_FREE`` free
     orientations; those wholly inside the zone count. CP-SAT (the
-    optimizer's own selection model, :meth:`optimizer.cpsat.CpSat.solve`)
+    optimizer's own selection model, :meth:`optimizer.search.cpsat.CpSat.solve`)
     chooses at most as many as the required count leaves, with no two
     interpenetrating (FCL), maximising their volume inside above
     ``BOUND_FLOOR``; every block it does not choose counts as

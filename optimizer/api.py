@@ -12,8 +12,12 @@ The pipeline, each step a pluggable strategy instance:
 1. beam search builds a layout in crane order from the placement pattern;
 2. simulated annealing refines it (porosity towards the target, evenness,
    support), and tries to add blocks where the count fell short;
-3. CP-SAT solves the bottom layer exactly over a discretised candidate set
-   and reports its bound beside the heuristic's result (optimality gap);
+3. optionally (``bound=True``, ``shoha optimize --bound``), CP-SAT solves the
+   bottom layer exactly over a discretised candidate set and reports its
+   bound beside the heuristic's result (the optimality gap). It changes the
+   layout only when nothing rests on the ground layer yet, so on a finished
+   layout it is a measurement, and it costs a quarter of a default run: it is
+   an explicit step, off by default;
 4. a physics settle confirms that the layout stands; unstable blocks are
    repaired (taken out, with whatever rests on them, and placed again) and
    the layout is settled again.
@@ -36,9 +40,13 @@ from geometry.errors import InputError
 from geometry.layout import Layout
 from geometry.scene import Scene
 
-from .base import Problem, Strategy
-from .build import Build
-from .patterns import InterlockLattice, lattice_for
+from .search.anneal import Annealing
+from .search.beam import BeamSearch
+from .search.build import Build
+from .search.cpsat import BoundStats, CpSat
+from .search.patterns import InterlockLattice, lattice_for
+from .search.physics import confirm, raised_check, stands
+from .search.problem import Clock, Phase, Problem, Strategy
 
 #: How far (percentage points) a reference layout's porosity may be from the
 #: scene's target before ``shoha optimize`` says it missed (issue 4: within 1).
@@ -66,7 +74,7 @@ class OptimizeResult:
     phases : list of dict
         Per strategy: name, seconds, blocks and porosity after it, and its stats.
     gap : dict
-        The CP-SAT bound beside the heuristic's result, where CP-SAT ran.
+        The CP-SAT bound beside the heuristic's result, where the bound step ran.
     outside_design_prism_m3 : float
         Block volume outside the design prism (in the tolerance zone, where
         the layout is valid): what porosity loses to blocks that stick out.
@@ -132,14 +140,10 @@ class OptimizeResult:
         }
 
 
-def default_strategies() -> list[Strategy]:
-    """Beam search, then annealing, then the CP-SAT bound on the ground layer."""
-    from .anneal import Annealing
-    from .beam import BeamSearch
-    from .cpsat import CpSat
-    from .physics import raised_check, stands
-
-    return [BeamSearch(accept=raised_check, judge=stands), Annealing(accept=raised_check), CpSat()]
+def default_strategies(bound: bool = False) -> list[Strategy]:
+    """Beam search, then annealing; with ``bound``, then the CP-SAT bound on the ground layer."""
+    out: list[Strategy] = [BeamSearch(accept=raised_check, judge=stands), Annealing(accept=raised_check)]
+    return out + [CpSat()] if bound else out
 
 
 def optimize(
@@ -150,6 +154,8 @@ def optimize(
     lattice: InterlockLattice | None = None,
     settle_layout: bool = True,
     report: Callable[[str, Build, str], None] | None = None,
+    bound: bool = False,
+    clock: Clock = time.monotonic,
 ) -> OptimizeResult:
     """Find a reference layout for ``scene``.
 
@@ -164,18 +170,24 @@ def optimize(
         Wall-clock budget for the search; the best valid layout found so far
         is returned when it runs out.
     strategies : sequence of Strategy, optional
-        Run in order, each improving the previous one's build.
+        Run in order, each improving the previous one's build; by default
+        :func:`default_strategies`.
     lattice : InterlockLattice, optional
         Placement pattern; the block type's tuned lattice by default.
     settle_layout : bool
         Confirm (and repair) with a physics settle.
     report : callable, optional
         ``report(phase, build, message)`` for a progress display.
+    bound : bool
+        Add the CP-SAT bound step to the default strategies (ignored when
+        ``strategies`` is given).
+    clock : callable
+        The clock the time limit is read on; tests inject one.
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
                          "shoha optimize places blocks in 3D scenes")
-    start = time.monotonic()
+    start = clock()
     rng = np.random.default_rng(seed)
     # Keep a share of the budget for the physics confirmation and the final checks.
     reserve = min(0.15 * time_limit, 10.0) if settle_layout else 0.0
@@ -186,33 +198,31 @@ def optimize(
         lattice=lattice or lattice_for(scene.block, scene.block_type),
         deadline=start + time_limit - reserve,
         report=report,
+        clock=clock,
     )
-    build: Build | None = None
+    phase: Phase | None = None
     phases = []
-    for strategy in strategies if strategies is not None else default_strategies():
-        t0 = time.monotonic()
-        build = strategy.run(problem, build, rng)
-        phases.append({"strategy": strategy.name, "seconds": time.monotonic() - t0, "blocks": len(build),
-                       "porosity_percent": build.porosity.percent, **strategy.stats()})
-    if build is None:
-        build = Build(scene)
+    gap: dict[str, Any] = {}
+    for strategy in strategies if strategies is not None else default_strategies(bound):
+        t0 = clock()
+        phase = strategy.run(problem, phase, rng)
+        phases.append({"strategy": strategy.name, "seconds": clock() - t0, "blocks": len(phase.build),
+                       "porosity_percent": phase.build.porosity.percent, **phase.stats.to_dict()})
+        if isinstance(phase.stats, BoundStats) and not phase.stats.skipped:
+            s = phase.stats
+            gap = {"layer": "ground", "slab_m": s.slab_m, "heuristic_m3": s.heuristic_m3,
+                   "objective_m3": s.objective_m3, "bound_m3": s.bound_m3, "gap_percent": s.gap_percent,
+                   "optimal": s.optimal, "candidates": s.candidates, "seconds": s.seconds}
+    build = phase.build if phase is not None else Build(scene)
     settle_info: dict[str, Any] = {}
     stable: bool | None = None
     if settle_layout:
-        from .physics import confirm
-
-        origin = next(((p["origin_x"], p["origin_y"]) for p in phases if "origin_x" in p), None)
         # Leave time for the final checks (about 3 ms a block, measured on mini and full).
         end = start + time_limit - (0.5 + 0.003 * scene.required_blocks)
-        build, settle_info = confirm(problem, build, rng, origin, end)
-        stable = settle_info["stable"]
+        build, confirmation = confirm(problem, build, rng, phase.origin if phase else None, end)
+        settle_info = confirmation.to_dict()
+        stable = confirmation.stable
     layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed}})
-    gap = {}
-    for p in phases:
-        if p["strategy"] == "cpsat" and "bound_m3" in p:
-            gap = {"layer": "ground", **{k: p[k] for k in ("slab_m", "heuristic_m3", "objective_m3",
-                                                             "bound_m3", "gap_percent", "optimal",
-                                                             "candidates")}}
     report_ = check_layout(scene, layout.placed())
     return OptimizeResult(
         layout=layout,
@@ -223,7 +233,7 @@ def optimize(
         collisions=len(report_.collisions),
         out_of_tolerance=len(report_.out_of_tolerance),
         stable=stable,
-        seconds=time.monotonic() - start,
+        seconds=clock() - start,
         settle=settle_info,
         phases=phases,
         gap=gap,

@@ -22,6 +22,27 @@ from geometry.scene import Scene, load_scene
 ROOT = Path(__file__).resolve().parents[1]
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--screenshots", default=None, metavar="DIR",
+                     help="Copy the browser tests' screenshots to DIR (make screenshots: docs/).")
+
+
+@pytest.fixture
+def keep_screenshot(request: pytest.FixtureRequest):
+    """``keep(path)``: copy a screenshot a test took in its temporary folder to ``--screenshots``.
+
+    Tests write only to temporary folders; this copy happens only when a
+    maintainer asks for it (``make screenshots``).
+    """
+    folder = request.config.getoption("--screenshots")
+
+    def keep(path: Path) -> None:
+        if folder is not None:
+            shutil.copyfile(path, Path(folder) / path.name)
+
+    return keep
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _isolated_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
     """Keep CoACD decompositions made by tests out of the user's cache."""

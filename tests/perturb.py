@@ -25,9 +25,8 @@ from geometry.layout import Layout, Placement
 from geometry.pose import Pose, quat_multiply
 from geometry.scene import Scene
 from geometry.tolerance import outside_volume
-
-from .drop import DropWorld, Shape
-from .interlock import BlockInterlock, interlock
+from optimizer.score.interlock import BlockInterlock, interlock
+from optimizer.search.drop import DropWorld, Shape
 
 #: Sideways step of :func:`lift_out_of_tolerance`, metres.
 LIFT_STEP = 0.1

@@ -30,8 +30,8 @@ from optimizer.batch import (
     run_batch,
     score_task,
 )
-from optimizer.perturb import trainee_saves
 from tests.conftest import shoha
+from tests.perturb import trainee_saves
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
 SAVES = 10  # and one bad save; save 9 carries a named fault

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
+
+import fcl
 import numpy as np
 import pytest
 
-from geometry.collision import CollisionWorld, collisions
+from geometry.collision import CollisionWorld, collisions, fcl_objects, overlap_groups
 from geometry.constants import tol
 from geometry.pose import Pose, axis_angle_quat
 from geometry.samples import random_inside
@@ -42,14 +45,45 @@ def test_world_is_incremental(shake):
     assert world.pairs() == []
 
 
-def test_broadphase_finds_the_same_pairs_as_all_pairs(mini, shake):
+def _all_pairs(placed, threshold: float) -> dict[tuple[int, int], float]:
+    """Brute force with no broadphase: FCL's penetration depth on every piece pair of every block pair."""
+    objects = {k: fcl_objects(b, p) for k, b, p in placed}
+    request = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
+    out = {}
+    for (ka, _, _), (kb, _, _) in itertools.combinations(placed, 2):
+        depths = []
+        for oa in objects[ka]:
+            for ob in objects[kb]:
+                result = fcl.CollisionResult()
+                if fcl.collide(oa, ob, request, result):
+                    depths.append(max(c.penetration_depth for c in result.contacts))
+        if depths and max(depths) > threshold:
+            out[(min(ka, kb), max(ka, kb))] = max(depths)
+    return out
+
+
+@pytest.mark.parametrize("threshold", [tol.contact_depth, 0.0])
+def test_broadphase_finds_the_same_pairs_and_depths_as_all_pairs(shake, cube, threshold):
+    """The k-d tree, sphere and piece-box prunings drop no pair that brute force finds.
+
+    Two block types (their radii differ, so the sphere test is not symmetric)
+    in a crowded box, every block pair checked piece by piece without pruning.
+    """
     rng = np.random.default_rng(9)
-    placed = [(i, shake, Pose(rng.uniform([-5, 0, 0], [5, 12, 3]),
-                                axis_angle_quat(rng.normal(size=3), rng.uniform(0, 3))))
+    placed = [(i, shake if i % 3 else cube, Pose(rng.uniform([-5, 0, 0], [5, 12, 3]),
+                                                 axis_angle_quat(rng.normal(size=3), rng.uniform(0, 3))))
               for i in range(60)]
-    fast = {(c.a, c.b) for c in collisions(placed)}
-    world = CollisionWorld(cell=100.0)  # one cell: every pair goes to the narrow phase
-    for k, b, p in placed:
-        world.add(k, b, p)
-    assert fast == {(c.a, c.b) for c in world.pairs()}
-    assert len(fast) > 5
+    fast = {(c.a, c.b): c.depth for c in collisions(placed, threshold)}
+    slow = _all_pairs(placed, threshold)
+    assert len(slow) > 5, "the layout must have collisions for the test to mean anything"
+    assert fast.keys() == slow.keys()
+    for pair, depth in slow.items():
+        assert fast[pair] == pytest.approx(depth, rel=1e-9)
+
+
+def test_overlap_groups_are_the_connected_touching_blocks(cube):
+    """A chain 0-1-2 touching end to end, a pair 4-5, and a block 3 alone: two groups."""
+    at = [0.0, 0.99, 1.98, 10.0, 20.0, 20.9]
+    placed = [(k, cube, Pose([x, 0, 0.5], [1, 0, 0, 0])) for k, x in enumerate(at)]
+    groups = sorted(sorted(placed[i][0] for i in g) for g in overlap_groups(placed))
+    assert groups == [[0, 1, 2], [4, 5]]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -16,14 +15,13 @@ from geometry.constants import tol
 from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene
-from optimizer.anneal import Annealing, energy_of
 from optimizer.api import optimize
-from optimizer.base import Problem
-from optimizer.beam import BeamSearch
-from optimizer.cpsat import CpSat
-from optimizer.drop import DropWorld, Shape
-from optimizer.hangings import BASE, FAMILIES, hanging
-from optimizer.patterns import (
+from optimizer.search.anneal import Annealing, energy_of
+from optimizer.search.beam import BeamSearch
+from optimizer.search.cpsat import CpSat
+from optimizer.search.drop import DropWorld, Shape
+from optimizer.search.hangings import BASE, FAMILIES, hanging
+from optimizer.search.patterns import (
     TUNED,
     UPPER_KEYS,
     InterlockLattice,
@@ -34,6 +32,8 @@ from optimizer.patterns import (
     lay_upper,
     upper_tops,
 )
+from optimizer.search.problem import Phase, Problem
+from tests.clock import WorkClock
 from tests.conftest import ROOT, shoha
 from tests.test_strategies import TINY, assert_valid, problem
 
@@ -48,8 +48,9 @@ def test_lower_refuses_exactly_the_drops_that_end_out_of_tolerance(name):
     """``Build.lower`` skips the drop of a block that crosses the zone's ceiling at
     ground height; that shortcut must refuse no block the drop would accept. Sites
     over the whole zone and past its slopes, on the ground and on a first layer."""
-    from optimizer.beam import ShapeCache, pattern_pass
-    from optimizer.build import Build
+    from optimizer.search.build import Build
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import pattern_pass
 
     scene = load_scene(name)
     prob = problem(scene)
@@ -183,7 +184,7 @@ def test_two_layer_patch_stands_clear_and_its_poses_round_trip():
 
 def test_second_pass_lays_the_upper_layer():
     """The beam's second pass is the tuned upper layer; without one, the first shifted by half a cell."""
-    from optimizer.beam import pattern_sites
+    from optimizer.search.sites import pattern_sites
 
     scene = load_scene("tetrapod")
     prob = problem(scene)
@@ -214,8 +215,9 @@ def test_origin_scans_reach_the_tetrapod_count():
     blocks here), and the steps that reach 81 are narrow; the line scans of
     :func:`rank_origins` must land on them. The ranking is best first.
     """
-    from optimizer.beam import ShapeCache, pattern_pass, rank_origins
-    from optimizer.build import Build
+    from optimizer.search.build import Build
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import pattern_pass, rank_origins
 
     scene = load_scene("tetrapod")
     prob = problem(scene)
@@ -265,8 +267,8 @@ def test_annealing_never_accepts_a_collision_and_its_energy_is_exact(tiny):
     assert a.applied > 0, "no move was accepted: the test would check nothing"
     for incremental, full in a.energies:
         assert incremental == pytest.approx(full, abs=1e-9)
-    assert a.stats()["energy"] == pytest.approx(energy_of(pr, out), abs=1e-9)
-    assert_valid(tiny, out)
+    assert out.stats.energy == pytest.approx(energy_of(pr, out.build), abs=1e-9)
+    assert_valid(tiny, out.build)
 
 
 def test_annealing_fills_a_short_layout(tiny):
@@ -278,10 +280,10 @@ def test_annealing_fills_a_short_layout(tiny):
     """
     pr = problem(tiny)
     start = BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1))
-    short = start.copy()
+    short = start.build.copy()
     for k in short.order[-3:]:
         short.remove(k)
-    out = Annealing(iterations=300).run(pr, short, np.random.default_rng(0))
+    out = Annealing(iterations=300).run(pr, Phase(short, origin=start.origin), np.random.default_rng(0)).build
     assert len(out) > len(short)
     assert energy_of(pr, out) < energy_of(pr, short)
 
@@ -320,9 +322,9 @@ def test_beam_restarts_only_until_a_full_layout_stands(tiny, stands, searches):
     decide how much work a seed does. The judge is the beam's input here, not under test."""
     pr = replace(problem(tiny), required=5)
     beam = BeamSearch(restarts=3, origins=3, judge=lambda p, b: stands)
-    build = beam.run(pr, None, np.random.default_rng(1))
-    assert len(build) == 5
-    assert beam.stats()["restarts"] == searches
+    phase = beam.run(pr, None, np.random.default_rng(1))
+    assert len(phase.build) == 5
+    assert phase.stats.restarts == searches
 
 
 def test_same_seed_same_layout_different_seed_different(tiny):
@@ -334,16 +336,18 @@ def test_same_seed_same_layout_different_seed_different(tiny):
 
 
 def test_optimize_result_is_valid_on_tiny(tiny):
-    """The default pipeline (beam, anneal, CP-SAT, settle) on a 25-block, 4 m slice of mini.
+    """The pipeline with the bound step (beam, anneal, CP-SAT, settle) on a 25-block, 4 m slice of mini.
 
     Validity is never traded for count. The count itself is the slow mini
     acceptance test's business; the slice's ends cost it a block or two, so
     here a floor of 80 % only catches a broken search.
     """
-    r = optimize(tiny, seed=1, time_limit=120)
+    r = optimize(tiny, seed=1, time_limit=120, bound=True)
     assert r.collisions == 0 and r.out_of_tolerance == 0
     assert r.stable is True
     assert r.blocks >= 0.8 * tiny.required_blocks
+    assert [p["strategy"] for p in r.phases] == ["beam", "anneal", "cpsat"]
+    assert r.gap["seconds"] > 0.0  # the bound's cost is reported
     if r.blocks < tiny.required_blocks:
         assert r.summary().startswith(f"{tiny.required_blocks} required, {r.blocks} fit: porosity ")
     assert r.gap["gap_percent"] >= 0.0 and r.gap["bound_m3"] >= r.gap["heuristic_m3"] - 1e-5
@@ -370,25 +374,27 @@ def test_summary_says_when_porosity_misses_the_target():
     assert short.summary().startswith("81 required, 70 fit") and "points" not in short.summary()
 
 
-def test_time_limit_is_honoured_and_result_valid(tiny):
-    t0 = time.monotonic()
-    r = optimize(tiny, seed=3, time_limit=4.0)
-    assert time.monotonic() - t0 < 4.0 + 3.0  # one settle and the final checks may run past
+def test_time_limit_is_honoured_and_result_valid(tiny, monkeypatch):
+    """4 s of a clock that advances with the work (tests/clock.py): the run keeps them, within 2 s."""
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    r = optimize(tiny, seed=3, time_limit=4.0, clock=clock)
+    assert r.seconds == clock() and r.seconds <= 4.0 + 2.0, f"{clock.drops} drops, {clock.settles} settles"
+    assert clock() > 4.0 * 0.5, "the budget must bind for the test to mean anything"
     assert r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
 
 
-def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path):
-    """A 2 km breakwater (about 12 000 blocks) in 4 s: one quick pass of the
-    pattern over it takes over a minute, so the origin ranking must stop at its
-    deadline too, and leave the search its time to place what it can."""
+def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path, monkeypatch):
+    """A 2 km breakwater (about 12 000 blocks) in 4 s of a clock that advances with the work:
+    one quick pass of the pattern over it would take 120 of them, so the origin ranking must
+    stop at its deadline too, and leave the search its time to place what it can."""
     text = (ROOT / "geometry" / "scenes" / "mini.toml").read_text()
     long = tmp_path / "long.toml"
     long.write_text(text.replace("length_m = 12.220833333333333", "length_m = 2000.0"))
     scene = load_scene(long)
     assert scene.required_blocks > 10_000  # the edit took: not mini's 75
-    t0 = time.monotonic()
-    r = optimize(scene, seed=1, time_limit=4.0)
-    assert time.monotonic() - t0 < 4.0 + 3.0
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    r = optimize(scene, seed=1, time_limit=4.0, clock=clock)
+    assert r.seconds <= 4.0 + 2.0, f"{clock.drops} drops, {clock.settles} settles"
     assert r.blocks > 0 and r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
     assert r.summary().startswith(f"{scene.required_blocks} required, {r.blocks} fit: porosity ")
 
@@ -444,7 +450,3 @@ def test_tetrapod_same_seed_same_layout_at_the_default_limit():
     a, b = (optimize(scene, seed=1, time_limit=120) for _ in range(2))
     assert a.layout.dumps() == b.layout.dumps()
     assert a.blocks == scene.required_blocks and a.valid, a.summary()
-
-
-def test_scene_root_is_available():
-    assert (ROOT / "tests" / "data" / "tiny.toml").is_file()

@@ -10,9 +10,9 @@ import pytest
 
 from geometry.layout import read_layout, write_layout
 from geometry.pose import Pose
-from optimizer.perturb import lift_out_of_tolerance
-from optimizer.render import COLOURS, piece_section
+from optimizer.score.render import COLOURS, piece_section
 from tests.conftest import shoha
+from tests.perturb import lift_out_of_tolerance
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
 

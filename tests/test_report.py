@@ -5,8 +5,10 @@ two pushed into each other is opened from disk with the network off. The
 test checks that nothing is requested from elsewhere, that no error reaches
 the console, that the three toggles (design prism, tolerance prism, crest)
 hide and show their traces and change the picture, and that the faulty
-blocks have their colours. It saves a screenshot to docs/report-screenshot.png
-for the README.
+blocks have their colours. It saves a screenshot in its temporary folder;
+``make screenshots`` copies it to docs/report-screenshot.png for the README
+(the ``--screenshots`` option of tests/conftest.py), and no other run writes
+outside a temporary folder.
 
 Where no Chromium is installed (a user's laptop) the test skips and says why;
 in CI (the ``CI`` environment variable set, as .ci/run does) it fails instead,
@@ -23,12 +25,12 @@ from pathlib import Path
 import pytest
 
 from geometry.layout import read_layout, write_layout
-from optimizer.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
-from optimizer.render import COLOURS
-from tests.conftest import ROOT, shoha
+from optimizer.score.render import COLOURS
+from tests.conftest import shoha
+from tests.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
-SCREENSHOT = ROOT / "docs" / "report-screenshot.png"
+SCREENSHOT = "report-screenshot.png"
 CHROMIUM = "/usr/bin/chromium"
 #: Headless, and nothing that talks to the network (the machine may have none).
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -73,8 +75,9 @@ def report(tmp_path_factory) -> tuple[Path, dict]:
     return out, json.loads(r.stdout)
 
 
-def test_report_in_headless_chromium(report):
+def test_report_in_headless_chromium(report, tmp_path, keep_screenshot):
     executable = _chromium()
+    shot = tmp_path / SCREENSHOT
     from playwright.sync_api import sync_playwright
 
     path, scored = report
@@ -136,10 +139,10 @@ def test_report_in_headless_chromium(report):
                 visible = page.evaluate("document.getElementById('view3d').data.map(t => t.visible)")
                 assert all(visible[i] is True for i in indices), (toggle, visible)
 
-            SCREENSHOT.parent.mkdir(exist_ok=True)
-            page.screenshot(path=str(SCREENSHOT), full_page=True)
+            page.screenshot(path=str(shot), full_page=True)
         finally:
             browser.close()
     assert remote == [], f"the report asked the network for {remote}"
     assert errors == [], f"console errors: {errors}"
-    assert SCREENSHOT.stat().st_size > 50_000
+    assert shot.stat().st_size > 50_000
+    keep_screenshot(shot)

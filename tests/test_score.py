@@ -23,15 +23,8 @@ from geometry.clip import volume_inside
 from geometry.constants import tol
 from geometry.errors import InputError
 from geometry.layout import Layout, read_layout
-from optimizer.interlock import InterlockRule, interlock
-from optimizer.perturb import (
-    jitter,
-    lift_out_of_tolerance,
-    push_together,
-    remove_last,
-    stand_on_leg_tip,
-)
-from optimizer.score import (
+from optimizer.score.interlock import InterlockRule, interlock
+from optimizer.score.scoring import (
     Reference,
     ScoreWeights,
     penalties,
@@ -39,6 +32,13 @@ from optimizer.score import (
     score,
     scoring_zone,
     zone_prisms,
+)
+from tests.perturb import (
+    jitter,
+    lift_out_of_tolerance,
+    push_together,
+    remove_last,
+    stand_on_leg_tip,
 )
 
 DATA = Path(__file__).parent / "data"

@@ -4,7 +4,8 @@ Each strategy supplies a fixture; the tests are shared. A build a strategy
 returns is valid: no interpenetration (FCL), every block inside the tolerance
 zone, every block resting on what it was lowered onto, supports placed
 before what they carry (a crane order), at most the required count; the same
-seed gives the same build and the deadline is kept.
+seed gives the same build, the input is left as it was, and the deadline is
+kept (on a clock that advances with the work done: tests/clock.py).
 """
 
 from __future__ import annotations
@@ -19,12 +20,13 @@ from geometry.collision import collisions
 from geometry.constants import tol
 from geometry.scene import load_scene
 from geometry.tolerance import out_of_tolerance
-from optimizer.anneal import Annealing
-from optimizer.base import Problem
-from optimizer.beam import BeamSearch
-from optimizer.build import GROUND, Build
-from optimizer.cpsat import CpSat
-from optimizer.patterns import lattice_for
+from optimizer.search.anneal import Annealing
+from optimizer.search.beam import BeamSearch
+from optimizer.search.build import GROUND, Build
+from optimizer.search.cpsat import CpSat
+from optimizer.search.patterns import lattice_for
+from optimizer.search.problem import Phase, Problem
+from tests.clock import WorkClock
 from tests.conftest import ROOT
 
 TINY = str(ROOT / "tests" / "data" / "tiny.toml")
@@ -35,10 +37,10 @@ def tiny():
     return load_scene(TINY)
 
 
-def problem(scene, seconds: float = 60.0) -> Problem:
+def problem(scene, seconds: float = 60.0, clock=time.monotonic) -> Problem:
     lattice = lattice_for(scene.block, scene.block_type)
     return Problem(scene, scene.required_blocks, scene.target_porosity, lattice,
-                   deadline=time.monotonic() + seconds)
+                   deadline=clock() + seconds, clock=clock)
 
 
 STRATEGIES = {
@@ -52,6 +54,10 @@ STRATEGIES = {
 def seeded(tiny):
     """A beam build for the strategies that refine one."""
     return BeamSearch(restarts=1, origins=3).run(problem(tiny), None, np.random.default_rng(3))
+
+
+def _build(name: str, seeded: Phase) -> Phase | None:
+    return seeded if name == "anneal" else None
 
 
 def _distance_to_support(build: Build, key: int) -> float:
@@ -88,23 +94,30 @@ def assert_valid(scene, build: Build) -> None:
 
 @pytest.mark.parametrize("name", list(STRATEGIES))
 class TestStrategyContract:
-    def _run(self, name, tiny, seeded, seed=0, seconds=60.0):
-        start = seeded if name == "anneal" else None
-        return STRATEGIES[name]().run(problem(tiny, seconds), start, np.random.default_rng(seed))
+    def _run(self, name, tiny, seeded, seed=0, seconds=60.0, clock=time.monotonic) -> Phase:
+        return STRATEGIES[name]().run(problem(tiny, seconds, clock), _build(name, seeded),
+                                      np.random.default_rng(seed))
 
     def test_returns_a_valid_build(self, name, tiny, seeded):
-        build = self._run(name, tiny, seeded)
-        assert len(build) > 0
-        assert_valid(tiny, build)
+        phase = self._run(name, tiny, seeded)
+        assert isinstance(phase, Phase)
+        assert len(phase.build) > 0
+        assert_valid(tiny, phase.build)
 
     def test_same_seed_same_build(self, name, tiny, seeded):
-        a = self._run(name, tiny, seeded, seed=5).layout().dumps()
-        b = self._run(name, tiny, seeded, seed=5).layout().dumps()
+        a = self._run(name, tiny, seeded, seed=5).build.layout().dumps()
+        b = self._run(name, tiny, seeded, seed=5).build.layout().dumps()
         assert a == b
 
-    def test_keeps_the_deadline(self, name, tiny, seeded):
-        t0 = time.monotonic()
-        build = self._run(name, tiny, seeded, seconds=0.5)
-        # The deadline is checked between steps: one step (a few candidate drops) may run past it.
-        assert time.monotonic() - t0 < 0.5 + 5.0
-        assert_valid(tiny, build)
+    def test_leaves_its_input_as_it_was(self, name, tiny, seeded):
+        before = seeded.build.layout().dumps()
+        STRATEGIES[name]().run(problem(tiny), seeded, np.random.default_rng(0))
+        assert seeded.build.layout().dumps() == before
+
+    def test_keeps_the_deadline(self, name, tiny, seeded, monkeypatch):
+        """Half a fake second of budget, where each candidate lowered costs 10 ms of it."""
+        clock = WorkClock(per_drop=0.01).install(monkeypatch)
+        phase = self._run(name, tiny, seeded, seconds=0.5, clock=clock)
+        # The deadline is checked between steps: one step (a beam's few dozen drops) may run past it.
+        assert clock() <= 0.5 + 1.0, f"{clock.drops} candidates lowered"
+        assert_valid(tiny, phase.build)

@@ -1,4 +1,4 @@
-"""``shoha optimize``: a reference layout for a scene (CONTRACT.md, "CLI").
+"""``shoha optimize``: a reference layout for a scene (docs/contract.md, "CLI").
 
 The only place where strategy names map to strategy classes.
 """
@@ -12,12 +12,14 @@ import click
 
 from geometry.errors import InputError
 
+from .common import check_out, emit, json_option
 
-def _strategies(names: str):
-    from .anneal import Annealing
-    from .beam import BeamSearch
-    from .cpsat import CpSat
-    from .physics import raised_check, stands
+
+def _strategies(names: str) -> list:
+    from optimizer.search.anneal import Annealing
+    from optimizer.search.beam import BeamSearch
+    from optimizer.search.cpsat import CpSat
+    from optimizer.search.physics import raised_check, stands
 
     table = {
         "beam": lambda: BeamSearch(accept=raised_check, judge=stands),
@@ -34,41 +36,43 @@ def _strategies(names: str):
     return out
 
 
-def register(cli: click.Group) -> None:
-    from .cli import _check_out, _emit
+@click.command("optimize")
+@click.argument("scene_name", metavar="SCENE")
+@click.option("--out", required=True, help="Layout file to write (shoha-layout/1).")
+@click.option("--seed", type=click.IntRange(0, 2**31 - 1), default=0, show_default=True,
+              help="Random seed; the same seed gives the same layout.")
+@click.option("--time-limit", type=float, default=120.0, show_default=True,
+              help="Wall-clock budget in seconds; the best valid layout so far is written.")
+@click.option("--strategy", "strategy_names", default="beam,anneal", show_default=True,
+              help="Strategies, run in order: beam, anneal, cpsat.")
+@click.option("--bound", is_flag=True,
+              help="Add the CP-SAT bound on the ground layer after the strategies (its gap in --json; "
+                   "about a quarter of a default run on mini).")
+@click.option("--no-settle", is_flag=True, help="Skip the physics confirmation.")
+@json_option
+def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float, strategy_names: str,
+                 bound: bool, no_settle: bool, as_json: bool) -> None:
+    """Find a reference layout: valid blocks in crane order, near the target porosity."""
+    from geometry.layout import write_layout
+    from geometry.scene import load_scene
+    from optimizer.api import optimize
 
-    @cli.command("optimize")
-    @click.argument("scene_name", metavar="SCENE")
-    @click.option("--out", required=True, help="Layout file to write (shoha-layout/1).")
-    @click.option("--seed", type=click.IntRange(0, 2**31 - 1), default=0, show_default=True,
-                  help="Random seed; the same seed gives the same layout.")
-    @click.option("--time-limit", type=float, default=120.0, show_default=True,
-                  help="Wall-clock budget in seconds; the best valid layout so far is written.")
-    @click.option("--strategy", "strategy_names", default="beam,anneal,cpsat", show_default=True,
-                  help="Strategies, run in order: beam, anneal, cpsat.")
-    @click.option("--no-settle", is_flag=True, help="Skip the physics confirmation.")
-    @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-    def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float, strategy_names: str,
-                     no_settle: bool, as_json: bool) -> None:
-        """Find a reference layout: valid blocks in crane order, near the target porosity."""
-        from geometry.layout import write_layout
-        from geometry.scene import load_scene
+    if not math.isfinite(time_limit) or time_limit <= 0:
+        raise InputError(f"--time-limit {time_limit}: must be a positive number of seconds")
+    path = check_out(out)
+    scene = load_scene(scene_name)
+    names = strategy_names + (",cpsat" if bound and "cpsat" not in strategy_names.split(",") else "")
+    strategies = _strategies(names)
+    with _Progress(scene.required_blocks, scene.target_porosity) as progress:
+        result = optimize(scene, seed=seed, time_limit=time_limit, strategies=strategies,
+                          settle_layout=not no_settle, report=progress.update)
+    result.layout.scene = scene.reference(path.parent)
+    write_layout(result.layout, path)
+    result.path = str(path)
+    payload = result.to_dict()
+    emit(payload, as_json, f"{result.summary()}\nwrote {path}")
 
-        from .api import optimize
 
-        if not math.isfinite(time_limit) or time_limit <= 0:
-            raise InputError(f"--time-limit {time_limit}: must be a positive number of seconds")
-        path = _check_out(out)
-        scene = load_scene(scene_name)
-        strategies = _strategies(strategy_names)
-        with _Progress(scene.required_blocks, scene.target_porosity) as progress:
-            result = optimize(scene, seed=seed, time_limit=time_limit, strategies=strategies,
-                              settle_layout=not no_settle, report=progress.update)
-        result.layout.scene = scene.reference(path.parent)
-        write_layout(result.layout, path)
-        result.path = str(path)
-        payload = result.to_dict()
-        _emit(payload, as_json, f"{result.summary()}\nwrote {path}")
 
 
 class _Progress:

@@ -1,6 +1,5 @@
-"""``shoha settle``: physics settle and stability verdict (CONTRACT.md, "CLI").
+"""``shoha settle``: physics settle and stability verdict (docs/contract.md, "CLI").
 
-Registered on the ``shoha`` group by ``optimizer.cli._register_optional_commands``.
 The table from backend names to classes lives here, at the CLI edge; the
 library takes backend instances (settle/base.py).
 """
@@ -15,7 +14,8 @@ from typing import Any
 import click
 
 from geometry.errors import InputError
-from optimizer.cli import _check_out, _emit
+
+from .common import check_out, emit, json_option
 
 #: Runs longer than this many wall-clock seconds show a progress line on stderr.
 PROGRESS_AFTER = 1.0
@@ -72,53 +72,50 @@ def _scene_reference(spec: str, base_dir: str | None, out: Path) -> str:
     return os.path.relpath(path.resolve(), out.resolve().parent)
 
 
-def register(cli: click.Group) -> None:
-    """Add ``settle`` to the ``shoha`` command group."""
+@click.command("settle")
+@click.argument("layout_path", metavar="LAYOUT")
+@click.option("--scene", "scene_name", default=None, help="Scene, instead of the layout's own.")
+@click.option("--seconds", type=float, default=2.0, show_default=True,
+              help="Simulated time, seconds (at most 60); stops early once all blocks rest.")
+@click.option("--out", default=None, help="Write the settled poses as a layout (shoha-layout/1).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seeds the tiny initial kick of each block; same seed, same result.")
+@click.option("--backend", "backend_name", type=click.Choice(BACKENDS), default="auto",
+              show_default=True, help="Physics engine; auto: MuJoCo for 3d scenes, pymunk for section.")
+@json_option
+def settle_cmd(layout_path: str, scene_name: str | None, seconds: float, out: str | None, seed: int,
+               backend_name: str, as_json: bool) -> None:
+    """Settle a layout under gravity and judge whether it stands.
 
-    @cli.command("settle")
-    @click.argument("layout_path", metavar="LAYOUT")
-    @click.option("--scene", "scene_name", default=None, help="Scene, instead of the layout's own.")
-    @click.option("--seconds", type=float, default=2.0, show_default=True,
-                  help="Simulated time, seconds (at most 60); stops early once all blocks rest.")
-    @click.option("--out", default=None, help="Write the settled poses as a layout (shoha-layout/1).")
-    @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-                  help="Seeds the tiny initial kick of each block; same seed, same result.")
-    @click.option("--backend", "backend_name", type=click.Choice(BACKENDS), default="auto",
-                  show_default=True, help="Physics engine; auto: MuJoCo for 3d scenes, pymunk for section.")
-    @click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")
-    def settle_cmd(layout_path: str, scene_name: str | None, seconds: float, out: str | None, seed: int,
-                   backend_name: str, as_json: bool) -> None:
-        """Settle a layout under gravity and judge whether it stands.
+    A block is stable if it moved at most 0.05 H and turned at most 5 degrees;
+    the layout is stable if every block is.
+    """
+    from geometry.layout import Layout, Placement, read_layout, write_layout
+    from settle import settle
+    from settle.base import MAX_SECONDS
 
-        A block is stable if it moved at most 0.05 H and turned at most 5 degrees;
-        the layout is stable if every block is.
-        """
-        from geometry.layout import Layout, Placement, read_layout, write_layout
-        from settle import settle
-        from settle.base import MAX_SECONDS
-
-        start = time.perf_counter()
-        if not 0 < seconds <= MAX_SECONDS:
-            raise InputError(f"--seconds {seconds}: must be more than 0 and at most {MAX_SECONDS:g}")
-        path = _check_out(out, (".json",)) if out is not None else None
-        layout = read_layout(layout_path)
-        scene = layout.load_scene(scene_name)
-        placed = layout.placed()
-        progress = _ProgressLine()
-        try:
-            result = settle(scene, placed, seconds=seconds, seed=seed, backend=_backend(backend_name),
-                            progress=progress)
-        finally:
-            progress.close()
-        payload = result.to_dict()
-        if path is not None:
-            spec = scene_name if scene_name is not None else layout.scene
-            base = str(Path.cwd()) if scene_name is not None else layout.base_dir
-            poses = result.poses
-            blocks = [Placement(p.id, p.type, poses[p.id]) for p in layout.blocks]
-            settled = Layout(_scene_reference(spec, base, path), blocks, dict(layout.extra))
-            write_layout(settled, path)
-            payload["path"] = str(path)
-        payload["seconds"] = time.perf_counter() - start
-        human = result.summary() + (f"; wrote {path}" if path is not None else "")
-        _emit(payload, as_json, human)
+    start = time.perf_counter()
+    if not 0 < seconds <= MAX_SECONDS:
+        raise InputError(f"--seconds {seconds}: must be more than 0 and at most {MAX_SECONDS:g}")
+    path = check_out(out, (".json",)) if out is not None else None
+    layout = read_layout(layout_path)
+    scene = layout.load_scene(scene_name)
+    placed = layout.placed()
+    progress = _ProgressLine()
+    try:
+        result = settle(scene, placed, seconds=seconds, seed=seed, backend=_backend(backend_name),
+                        progress=progress)
+    finally:
+        progress.close()
+    payload = result.to_dict()
+    if path is not None:
+        spec = scene_name if scene_name is not None else layout.scene
+        base = str(Path.cwd()) if scene_name is not None else layout.base_dir
+        poses = result.poses
+        blocks = [Placement(p.id, p.type, poses[p.id]) for p in layout.blocks]
+        settled = Layout(_scene_reference(spec, base, path), blocks, dict(layout.extra))
+        write_layout(settled, path)
+        payload["path"] = str(path)
+    payload["seconds"] = time.perf_counter() - start
+    human = result.summary() + (f"; wrote {path}" if path is not None else "")
+    emit(payload, as_json, human)

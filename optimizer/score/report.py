@@ -31,7 +31,7 @@ from geometry.scene import Scene
 from geometry.tolerance import TrapezoidalPrism
 
 from .render import COLOURS, block_status
-from .score import ScoreReport, Zone
+from .scoring import ScoreReport, Zone
 
 Placed = Sequence[tuple[int, Block, Pose]]
 

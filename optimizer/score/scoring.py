@@ -86,7 +86,7 @@ class ScoreWeights:
                 raise InputError(f"score weights: {name} must be a non-negative number, not {v!r}")
         caps = (self.porosity_max + self.missing_max + self.tolerance_max + self.collision_max
                 + self.stability_max + self.interlock_max)
-        if abs(caps - 100.0) > 1e-9:
+        if abs(caps - 100.0) > tol.points:
             raise InputError(f"score weights: the caps must add up to 100, not {caps:g}")
 
 

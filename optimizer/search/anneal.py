@@ -33,14 +33,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Problem, Strategy
-from .beam import ShapeCache
+from geometry.constants import tol
+from geometry.porosity import exact_filled_volume
+from geometry.pose import axis_angle_quat, quat_multiply
+
 from .build import GROUND, Build, Candidate, fill_window
 from .hangings import FAMILIES, free, hanging
 from .objective import Energy
+from .problem import Phase, Problem, Stats, Strategy
+from .shapes import ShapeCache
+from .sites import pattern_sites
 
 MOVES = ("jitter", "yaw", "hanging", "relocate")
 
@@ -52,14 +58,38 @@ def weak_blocks(build: Build) -> int:
 
 def energy_of(problem: Problem, build: Build) -> float:
     """The energy of a build computed from scratch (the reference for the incremental one)."""
-    from geometry.porosity import exact_filled_volume
-
     e = Energy(problem.scene, problem.required, problem.target)
     for k in build.order:
         e.add(build.poses[k].position)
     filled = exact_filled_volume(problem.scene.design.polytope, build.placed(), assume_disjoint=True)
     porosity = 100.0 * (problem.scene.design_volume - filled) / problem.scene.design_volume
     return e.total(len(build), porosity, weak_blocks(build))
+
+
+@dataclass(frozen=True)
+class AnnealStats(Stats):
+    """What an annealing run did.
+
+    Attributes
+    ----------
+    iterations : int
+        Moves proposed (fewer than asked when the deadline came first).
+    accepted, rejected : int
+        Moves kept, and moves the Metropolis rule or the local settle refused.
+    infeasible : int
+        Moves whose block ended out of tolerance or colliding.
+    t0 : float
+        The calibrated starting temperature, energy units.
+    energy : float
+        The best build's energy.
+    """
+
+    iterations: int
+    accepted: int
+    rejected: int
+    infeasible: int
+    t0: float
+    energy: float
 
 
 class Annealing(Strategy):
@@ -85,10 +115,6 @@ class Annealing(Strategy):
         self.jitter_yaw = jitter_yaw
         self.accept = accept
         self._sites: list[tuple[str, float, float, float]] = []
-        self._stats: dict[str, float] = {}
-
-    def stats(self) -> dict[str, float]:
-        return dict(self._stats)
 
     # --- moves ---------------------------------------------------------------------------
 
@@ -109,8 +135,6 @@ class Annealing(Strategy):
         if kind == "jitter":
             x, y = x + rng.normal(0, self.jitter_xy), y + rng.normal(0, self.jitter_xy)
         elif kind == "yaw":
-            from geometry.pose import axis_angle_quat, quat_multiply
-
             q = quat_multiply(axis_angle_quat([0, 0, 1], rng.normal(0, self.jitter_yaw)), q)
         elif kind == "hanging":
             q = self._orientation(problem, rng)
@@ -163,11 +187,10 @@ class Annealing(Strategy):
 
     # --- search ----------------------------------------------------------------------------
 
-    def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
-        from .beam import pattern_sites
-
-        build = build.copy() if build is not None else Build(problem.scene)
-        self._sites = pattern_sites(problem, problem.origin) if problem.origin is not None else []
+    def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
+        build = previous.build.copy() if previous is not None else Build(problem.scene)
+        origin = previous.origin if previous is not None else None
+        self._sites = pattern_sites(problem, origin) if origin is not None else []
         shapes = ShapeCache(problem.scene.block)
         energy = Energy(problem.scene, problem.required, problem.target)
         for k in build.order:
@@ -206,11 +229,9 @@ class Annealing(Strategy):
             weak = new_weak
             current += d
             accepted += 1
-            if current < best_e - 1e-12:
+            if current < best_e - tol.energy:
                 best_e, best = current, build.copy()
             if it % 50 == 0:
                 problem.tell(self.name, best, f"T={temp:.3g} E={best_e:.3f}")
-        self._stats = {"iterations": float(it + 1 if self.iterations else 0), "accepted": float(accepted),
-                       "rejected": float(rejected), "infeasible": float(collided), "t0": t0,
-                       "energy": best_e}
-        return best
+        stats = AnnealStats(it + 1 if self.iterations else 0, accepted, rejected, collided, t0, best_e)
+        return Phase(best, stats, origin)

@@ -28,22 +28,42 @@ for origins on line scans across one lattice cell (:func:`rank_origins`).
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from .base import Problem, Strategy
 from .build import GROUND, Build, Candidate, fill_window
 from .drop import Shape
 from .hangings import free, hanging
+from .problem import Phase, Problem, Stats, Strategy
+from .shapes import ShapeCache
+from .sites import pattern_sites, rank_origins
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
 #: Beam budget (s) from which origins are ranked in full: ``shoha optimize``'s
 #: default 120 s limit gives the beam about 80 s.
 RANK_SECONDS = 60.0
+
+
+@dataclass(frozen=True)
+class BeamStats(Stats):
+    """What a beam search did.
+
+    Attributes
+    ----------
+    candidates : int
+        Candidates lowered and scored, over every restart.
+    restarts : int
+        Searches run, from as many pattern origins.
+    origin : (float, float)
+        The pattern origin of the build returned.
+    """
+
+    candidates: int
+    restarts: int
+    origin: tuple[float, float]
 
 
 @dataclass
@@ -53,21 +73,6 @@ class _Beam:
     used: frozenset[int]
     done: bool = False
     idle: int = 0  # consecutive steps with no candidate
-
-
-class ShapeCache:
-    """Shapes by quantised orientation, so repeated hangings are built once."""
-
-    def __init__(self, block):
-        self.block = block
-        self._cache: dict[tuple, Shape] = {}
-
-    def get(self, q: np.ndarray) -> Shape:
-        key = tuple(np.round(q, 12))
-        s = self._cache.get(key)
-        if s is None:
-            s = self._cache[key] = Shape.of(self.block, q)
-        return s
 
 
 class BeamSearch(Strategy):
@@ -156,10 +161,6 @@ class BeamSearch(Strategy):
         self.restarts = restarts
         self.share = share
         self.judge = judge
-        self._stats: dict[str, float] = {}
-
-    def stats(self) -> dict[str, float]:
-        return dict(self._stats)
 
     # --- candidates ------------------------------------------------------------
 
@@ -216,10 +217,10 @@ class BeamSearch(Strategy):
 
     # --- search ---------------------------------------------------------------------
 
-    def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
-        start = build.copy() if build is not None else Build(problem.scene)
+    def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
+        start = previous.build.copy() if previous is not None else Build(problem.scene)
         shapes = ShapeCache(problem.scene.block)
-        t0 = time.monotonic()
+        t0 = problem.now()
         # The beam's share of the time left; the rest is for the strategies after it.
         end = t0 + self.share * max(0.0, problem.time_left())
         if self.origin is not None:
@@ -243,7 +244,7 @@ class BeamSearch(Strategy):
             # Restarts follow from results, not from the clock: the same seed does the same
             # work on any machine, and only a deadline that binds cuts it short.
             # best[0] starts (-count, not stands): a full layout that stands ends the restarts.
-            if n and (time.monotonic() > end or best[0][:2] <= (-problem.required, False)):
+            if n and (problem.now() > end or best[0][:2] <= (-problem.required, False)):
                 break
             result, count = self._search(problem, start, origin, shapes, rng, end)
             tried += count
@@ -255,10 +256,7 @@ class BeamSearch(Strategy):
             problem.tell(self.name, best[1], f"restart {n + 1}: {len(result)} placed")
         assert best is not None
         _, result, origin = best
-        problem.origin = origin
-        self._stats = {"candidates": float(tried), "restarts": float(runs),
-                       "origin_x": origin[0], "origin_y": origin[1]}
-        return result
+        return Phase(result, BeamStats(tried, runs, origin), origin)
 
     def _search(self, problem: Problem, start: Build, origin: tuple[float, float], shapes: ShapeCache,
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:
@@ -266,7 +264,7 @@ class BeamSearch(Strategy):
         sites = pattern_sites(problem, origin)
         beams = [_Beam(start, 0.0, frozenset())]
         tried = 0
-        while any(not b.done for b in beams) and time.monotonic() < end:
+        while any(not b.done for b in beams) and problem.now() < end:
             expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []
             for bi, beam in enumerate(beams):
                 if beam.done:
@@ -312,88 +310,3 @@ class BeamSearch(Strategy):
             problem.tell(self.name, lead.build, f"{len(lead.build)} placed")
         final = max(beams, key=lambda b: (len(b.build), b.build.inside_volume))
         return final.build, tried
-
-
-def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator, start: Build,
-                 probes: int, stop: float, scans: int = 0, n: int = 16) -> list[tuple[float, float]]:
-    """Pattern origins, best first: by the volume their sites alone place in the design prism.
-
-    First ``probes`` origins, (0, 0) and seeded random ones over one lattice
-    cell. Then ``scans`` line scans, taken in turn along the crest (y) and
-    across it (x), each through the best origin so far: ``n`` origins along
-    the crest, or ``n / 2`` across it, spaced evenly over one lattice period
-    with a seeded offset. The count a pattern places is a step function of
-    its origin, nearly a sum of one step in x (how many rows fit between the
-    slopes) and one in y (how many fit between the ends): on ``tetrapod`` it
-    ranges from 60 to 81 blocks, and the steps that reach 81 are about 0.3 m
-    wide in x and 0.16 m in y, against scan spacings of 0.23 m and 0.13 m at
-    ``n = 16``: a scan cannot step over them, where random probes often
-    miss them. Trials stop at ``stop`` (``time.monotonic()``). A trial the
-    deadline cuts short is dropped, unless it is the only one: then the
-    origin it drew is all there is to rank (a budget too short for one pass
-    over a long scene).
-    """
-    lat = problem.lattice
-    period = np.array([lat.w, lat.p])
-    trials = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
-                             for _ in range(probes - 1)]
-    scored: list[tuple[float, int, tuple[float, float]]] = []
-
-    def trial(origin: tuple[float, float]) -> None:
-        volume = pattern_pass(problem, shapes, start, origin, stop).inside_volume
-        if not scored or time.monotonic() <= stop:
-            scored.append((-volume, len(scored), origin))
-
-    for origin in trials:
-        if scored and time.monotonic() > stop:
-            break
-        trial(origin)
-    for scan in range(scans):
-        best = np.array(min(scored)[2])
-        axis = 1 - scan % 2  # along the crest first: its steps are the narrower
-        m = n if axis == 1 else max(2, n // 2)  # the steps across are twice as wide
-        offset = rng.uniform(0.0, 1.0)
-        for i in range(m):
-            if time.monotonic() > stop:
-                break
-            best[axis] = (i + offset) / m * period[axis]
-            trial((float(best[0]), float(best[1])))
-    scored.sort()
-    return [o for _, _, o in scored]
-
-
-def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple[float, float],
-                 stop: float = float("inf")) -> Build:
-    """``start`` with the pattern's sites from ``origin`` lowered in crane order, as drawn,
-    up to the required count or until ``stop`` (``time.monotonic()``): the quick pass
-    that ranks an origin."""
-    b = start.copy()
-    for fam, yaw, x, y in pattern_sites(problem, origin):
-        if len(b) >= problem.required or time.monotonic() > stop:
-            break
-        c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
-        if c is not None:
-            b.place(c)
-    return b
-
-
-def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[str, float, float, float]]:
-    """Pattern sites in crane order: the lattice, then the layer laid on it, and so on.
-
-    Each pass lands on the one before where it left no room below: the next
-    layer, nested into the pockets of the one under it. The second pass is
-    the lattice's tuned upper layer where it has one (tetrapods), otherwise
-    the lattice shifted by half a cell; later passes alternate the two. A
-    nested layer adds about 0.8 H of height, so the zone's height sets the
-    number of passes (two for ``mini``'s 3.55 m zone and 1.66 m blocks, more
-    for taller mounds).
-    """
-    z = problem.scene.tolerance
-    xr, yr = (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
-    lat = problem.lattice
-    passes = max(2, int(np.floor((z.z_top - z.z_bottom) / (0.8 * problem.scene.block.height))))
-    upper, shifted = lat.second_layer(origin)
-    sites = []
-    for n in range(passes):
-        sites += lat.sites(xr, yr, origin) if n % 2 == 0 else upper.sites(xr, yr, shifted)
-    return sites

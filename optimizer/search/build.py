@@ -224,10 +224,3 @@ def fill_window(scene: Scene) -> tuple[tuple[float, float], tuple[float, float]]
     half = z.bottom_half_width - run * h / 2 - 0.3 * h
     inset = 0.45 * h
     return (-half, half), (z.y_start + inset, z.y_end - inset)
-
-
-def resting_gap(build: Build, key: int) -> float:
-    """Vertical gap (m) under a placed block: how far it could still be lowered."""
-    shape, pose = build.shapes[key], build.poses[key]
-    z, _, _ = build.drops.drop(shape, pose.position[0], pose.position[1], exclude=frozenset({key}))
-    return float(pose.position[2] - z + tol.drop_resolution)

@@ -29,23 +29,68 @@ Result
 
 from __future__ import annotations
 
-import time
+import heapq
 from collections import defaultdict
+from dataclasses import dataclass
 
 import numpy as np
 
+from geometry.clip import volume_inside
 from geometry.collision import CollisionWorld
 from geometry.constants import tol
 from geometry.pose import Pose
 
-from .base import Problem, Strategy
-from .beam import ShapeCache
 from .build import GROUND, Build
 from .drop import DropWorld, Shape
 from .hangings import hanging
+from .problem import Phase, Problem, Stats, Strategy
+from .shapes import ShapeCache
+from .sites import rank_origins
 
 #: Objective units per cubic metre.
 SCALE = 1_000_000
+
+
+@dataclass(frozen=True)
+class BoundStats(Stats):
+    """CP-SAT's bound on the ground layer, set beside the heuristic's (the optimality gap).
+
+    Attributes
+    ----------
+    skipped : bool
+        No time was left to solve: every other figure is zero.
+    slab_m : float
+        Length of crest solved (the whole scene, or a slab at one end).
+    candidates, conflicts : int
+        Size of the model.
+    heuristic_m3 : float
+        Design-prism volume of the input build's ground blocks in the slab.
+    objective_m3, bound_m3 : float
+        CP-SAT's best selection and its proven bound on the optimum.
+    gap_percent : float
+        How far the bound lies above the heuristic, percent of the bound.
+    solver_gap_percent : float
+        How far the bound lies above the best of the two.
+    optimal : bool
+        CP-SAT proved its selection optimal.
+    placed : int
+        Blocks of the solved layer laid (only on a build with nothing above its ground layer).
+    seconds : float
+        The step's cost: wall-clock seconds of candidates, model and solve.
+    """
+
+    skipped: bool = False
+    slab_m: float = 0.0
+    candidates: int = 0
+    conflicts: int = 0
+    heuristic_m3: float = 0.0
+    objective_m3: float = 0.0
+    bound_m3: float = 0.0
+    gap_percent: float = 0.0
+    solver_gap_percent: float = 0.0
+    optimal: bool = False
+    placed: int = 0
+    seconds: float = 0.0
 
 
 class CpSat(Strategy):
@@ -78,10 +123,6 @@ class CpSat(Strategy):
         self.time_limit = time_limit
         self.slab = slab
         self._time_left = float("inf")
-        self._stats: dict[str, float] = {}
-
-    def stats(self) -> dict[str, float]:
-        return dict(self._stats)
 
     # --- candidates -------------------------------------------------------------------
 
@@ -112,8 +153,6 @@ class CpSat(Strategy):
         return out
 
     def _candidate(self, problem: Problem, shape: Shape, pose: Pose) -> tuple[Shape, Pose, float] | None:
-        from geometry.clip import volume_inside
-
         scene = problem.scene
         if not scene.tolerance.polytope.contains(pose.apply(scene.block.vertices)).all():
             return None
@@ -177,7 +216,7 @@ class CpSat(Strategy):
         chosen = [i for i in range(len(values)) if solver.value(x[i])]
         return chosen, solver.objective_value / SCALE, solver.best_objective_bound / SCALE, name
 
-    def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
+    def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
         """Solve the ground layer; lay it on an empty build, or bound a finished one.
 
         The candidate set holds the input build's own ground blocks and the
@@ -188,13 +227,11 @@ class CpSat(Strategy):
         unchanged (its upper layers stand on that ground layer); the bound is
         recorded in :meth:`stats`.
         """
-        from .beam import rank_origins
-
-        t0 = time.monotonic()
-        start = build.copy() if build is not None else Build(problem.scene)
+        t0 = problem.now()
+        start = previous.build.copy() if previous is not None else Build(problem.scene)
+        origin = previous.origin if previous is not None else None
         if problem.time_left() <= 0:
-            self._stats = {"skipped": 1.0}
-            return start
+            return Phase(start, BoundStats(skipped=True), origin)
         shapes = ShapeCache(problem.scene.block)
         zone = problem.scene.tolerance
         # A long scene is solved on a slab at one end (its end and slopes, the hard part):
@@ -213,7 +250,7 @@ class CpSat(Strategy):
         cands += [(start.shapes[k], start.poses[k], 0.0) for k in border]
         fixed = frozenset(range(len(own), len(own) + len(border)))
         origins = rank_origins(problem, shapes, rng, Build(problem.scene), max(2, self.origins + 2),
-                               time.monotonic() + 0.1 * max(0.0, problem.time_left()))
+                               problem.now() + 0.1 * max(0.0, problem.time_left()))
         cands += self.candidates(problem, origins[: self.origins], rng, (y0, y1))
         conflicts, before = self.relations(problem, cands)
         limit = max(0, problem.required - upper - outside)
@@ -221,7 +258,7 @@ class CpSat(Strategy):
         chosen, objective, bound, status = self.solve([v for _, _, v in cands], conflicts, limit,
                                                       int(rng.integers(2**31)), fixed)
         placed = 0
-        if whole and upper == 0 and objective > heuristic + 1e-9:
+        if whole and upper == 0 and objective > heuristic + tol.objective_volume:
             # Lay the solved ground layer, blockers first, each lowered to confirm it.
             start = Build(problem.scene)
             for i in _topological(chosen, before):
@@ -231,21 +268,21 @@ class CpSat(Strategy):
                     start.place(c)
                     placed += 1
         best = max(objective, heuristic)
-        self._stats = {
-            "slab_m": float(y1 - y0),
-            "candidates": float(len(cands)),
-            "conflicts": float(len(conflicts)),
-            "heuristic_m3": heuristic,
-            "objective_m3": objective,
-            "bound_m3": bound,
+        stats = BoundStats(
+            slab_m=float(y1 - y0),
+            candidates=len(cands),
+            conflicts=len(conflicts),
+            heuristic_m3=heuristic,
+            objective_m3=objective,
+            bound_m3=bound,
             # Clamped at zero: the objective is rounded to 1e-6 m^3 for the integer model.
-            "gap_percent": max(0.0, 100.0 * (bound - heuristic) / bound) if bound > 0 else 0.0,
-            "solver_gap_percent": max(0.0, 100.0 * (bound - best) / bound) if bound > 0 else 0.0,
-            "optimal": float(status == "OPTIMAL"),
-            "placed": float(placed),
-            "seconds": time.monotonic() - t0,
-        }
-        return start
+            gap_percent=max(0.0, 100.0 * (bound - heuristic) / bound) if bound > 0 else 0.0,
+            solver_gap_percent=max(0.0, 100.0 * (bound - best) / bound) if bound > 0 else 0.0,
+            optimal=status == "OPTIMAL",
+            placed=placed,
+            seconds=problem.now() - t0,
+        )
+        return Phase(start, stats, origin)
 
 
 def overlapping_pairs(block, poses: list[Pose]) -> set[tuple[int, int]]:
@@ -258,8 +295,6 @@ def overlapping_pairs(block, poses: list[Pose]) -> set[tuple[int, int]]:
 
 def _topological(nodes: list[int], before: set[tuple[int, int]]) -> list[int]:
     """Nodes ordered so that every ``(a, b)`` in ``before`` has a first; ties by index."""
-    import heapq
-
     chosen = set(nodes)
     succ: dict[int, list[int]] = defaultdict(list)
     indeg = {n: 0 for n in nodes}

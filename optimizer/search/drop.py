@@ -74,7 +74,7 @@ def _side(piece: ConvexPolytope, sign: float) -> tuple[np.ndarray, np.ndarray]:
     """Edges ``(e, 2, 3)`` and vertices ``(v, 3)`` of the faces whose normals point up (+1) or down (-1)."""
     tri = piece.vertices[piece.faces]
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    facing = sign * n[:, 2] > 1e-9 * np.linalg.norm(n, axis=1)
+    facing = sign * n[:, 2] > tol.orientation * np.linalg.norm(n, axis=1)
     faces = piece.faces[facing]
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     e = np.unique(np.sort(e, axis=1), axis=0)
@@ -90,7 +90,7 @@ def _segment_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
         u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
-    ok = (np.abs(denom) > 1e-12) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    ok = (np.abs(denom) > tol.parallel) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
     ii, jj = np.nonzero(ok)
     return p[ii, 0] + t[ii, jj, None] * r[ii, 0]
 
@@ -112,7 +112,7 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
     # Vertical extents of both pieces on these lines; the moving one back at the origin.
     q_lo, q_hi = column_intervals(fixed.normals, fixed.offsets, pts)
     p_lo, p_hi = column_intervals(moving.normals, moving.offsets, pts - offset_xy)
-    slack = 1e-9
+    slack = tol.distance
     ok = (q_hi >= q_lo - slack) & (p_hi >= p_lo - slack)
     if not ok.any():
         return -np.inf
@@ -213,7 +213,7 @@ class DropWorld:
             # Height field at the piece's vertices and at the field's nodes under it.
             pts = np.concatenate([p.vertices[:, :2] + (x, y), nodes])
             lo, hi = column_intervals(p.normals, p.offsets, pts - (x, y))
-            ok = hi >= lo - 1e-9
+            ok = hi >= lo - tol.distance
             if ok.any():
                 best = max(best, float(np.max(f.height_at(pts[ok]) - lo[ok])))
         return best

@@ -26,6 +26,7 @@ are applied to the block frame: as given, upside down, and on its side.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from geometry.blocks import LEG_DIRECTIONS
 from geometry.pose import axis_angle_quat, quat_multiply
@@ -35,21 +36,23 @@ FAMILIES = ("crown", "level", "horizontal")
 
 
 def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The shortest rotation taking unit vector ``a`` to ``b``, as ``[w, x, y, z]``."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    axis = np.cross(a, b)
-    if np.linalg.norm(axis) < 1e-12:
-        return np.array([1.0, 0.0, 0.0, 0.0]) if a @ b > 0 else axis_angle_quat([1.0, 0.0, 0.0], np.pi)
-    return axis_angle_quat(axis, float(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+    """The shortest rotation taking direction ``a`` to ``b``, as ``[w, x, y, z]`` (scipy).
+
+    Not for opposite directions, where no rotation is shortest.
+    """
+    r, _ = Rotation.align_vectors(np.asarray(b, float)[None], np.asarray(a, float)[None])
+    return r.as_quat(scalar_first=True)
 
 
 _EDGE = LEG_DIRECTIONS[0] + LEG_DIRECTIONS[1]  # midpoint direction of the edge joining legs 0 and 1
 
-#: Base orientation of each family, before yaw (scalar-first quaternions).
+#: Base orientation of each family, before yaw (scalar-first quaternions). Level
+#: hanging is the block frame turned over: half a turn about its x axis takes leg
+#: 0 from +z to -z. (Any half turn about a horizontal axis does; the axis fixes
+#: the yaw the tuned lattices were found at.)
 BASE = {
     "crown": np.array([1.0, 0.0, 0.0, 0.0]),
-    "level": _turn(LEG_DIRECTIONS[0], np.array([0.0, 0.0, -1.0])),
+    "level": axis_angle_quat([1.0, 0.0, 0.0], np.pi),
     "horizontal": _turn(_EDGE, np.array([0.0, 0.0, 1.0])),
 }
 

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -193,10 +192,10 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     bounds = [(0.5 * h, 2.0 * h), (0.5 * h, 2.5 * h), (-h, h), (0.0, 2.0 * h), (-h, h),
               (0.0, 2 * np.pi / 3), (0.0, 2 * np.pi / 3)]
     r = differential_evolution(_lattice_penalty, bounds, args=(block, families), seed=seed,
-                               maxiter=maxiter, popsize=20, tol=1e-8, polish=False)
+                               maxiter=maxiter, popsize=20, tol=tol.tuning, polish=False)
     p, w, q, u, v, ya, yb = (float(x) for x in r.x)
     lattice = InterlockLattice(p, w, q, u, v, ya, yb, *families)
-    if _lattice_penalty(r.x, block, families) > lattice.area_per_block + 1e-9:
+    if _lattice_penalty(r.x, block, families) > lattice.area_per_block * (1 + tol.relative):
         raise RuntimeError(f"{block.name}: no crane-feasible interlocking lattice found")
     return lattice
 
@@ -282,7 +281,7 @@ def tune_upper(block: Block, lattice: InterlockLattice, seed: int = 0, maxiter: 
     bounds = [(0.0, lattice.w), (0.0, lattice.p), (0.0, lattice.w), (0.0, lattice.p),
               (0.0, 2 * np.pi / 3), (0.0, 2 * np.pi / 3)]
     r = differential_evolution(_upper_penalty, bounds, args=(world, block, lattice, families), seed=seed,
-                               maxiter=maxiter, popsize=15, tol=1e-8, polish=False)
+                               maxiter=maxiter, popsize=15, tol=tol.tuning, polish=False)
     return replace(lattice, upper=UpperLayer(*(float(x) for x in r.x), *families))
 
 
@@ -318,7 +317,7 @@ def lattice_for(block: Block, name: str) -> InterlockLattice:
     """The placement lattice of a block type.
 
     The tuned lattice for built-in blocks; a lattice tuned for this exact
-    block earlier and cached on disk (:func:`tune_and_cache`); otherwise the
+    block earlier and cached on disk (``python -m optimizer.search.patterns``); otherwise the
     staggered half-brick bond, which needs no tuning. Tuning takes minutes,
     so ``shoha optimize`` never tunes by itself: its time limit holds.
     """
@@ -334,17 +333,6 @@ def lattice_for(block: Block, name: str) -> InterlockLattice:
 def _cache_path(block: Block) -> Path:
     digest = hashlib.sha256(np.ascontiguousarray(block.vertices).tobytes()).hexdigest()[:16]
     return cache_dir() / "lattices" / f"{digest}.json"
-
-
-def tune_and_cache(block: Block, seed: int = 0) -> InterlockLattice:
-    """Tune a block's interlocking lattice and cache it, for :func:`lattice_for` to find."""
-    lattice = tune_lattice(block, seed=seed)
-    path = _cache_path(block)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(f".{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(asdict(lattice)))
-    os.replace(tmp, path)
-    return lattice
 
 
 def staggered(block: Block, family: str = "crown") -> InterlockLattice:

@@ -15,15 +15,15 @@
 
 from __future__ import annotations
 
-import time
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from settle import Thresholds, settle
 
-from .base import Problem
+from .beam import BeamSearch
 from .build import GROUND, Build, Candidate
+from .problem import Phase, Problem
 
 #: Simulated seconds of the local check of one candidate.
 LOCAL_SECONDS = 1.0
@@ -68,33 +68,62 @@ def carried_closure(build: Build, keys: set[int]) -> set[int]:
     return out
 
 
+@dataclass(frozen=True)
+class Confirmation:
+    """The settle that confirms a layout, after any repairs.
+
+    Attributes
+    ----------
+    stable : bool
+        The last settle's verdict on the build returned.
+    max_displacement_m, max_rotation_deg : float
+        Of that settle.
+    unstable : list of int
+        Crane-order indices of the blocks that failed it (empty when stable).
+    rounds : int
+        Repair rounds run.
+    repaired : int
+        Blocks taken out over those rounds (each with what rested on it).
+    seconds : float
+    """
+
+    stable: bool
+    max_displacement_m: float
+    max_rotation_deg: float
+    unstable: list[int]
+    rounds: int
+    repaired: int
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"stable": self.stable, "max_displacement_m": self.max_displacement_m,
+                "max_rotation_deg": self.max_rotation_deg, "unstable": list(self.unstable),
+                "rounds": self.rounds, "repaired": self.repaired, "seconds": self.seconds}
+
+
 def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             origin: tuple[float, float] | None = None, end: float | None = None
-            ) -> tuple[Build, dict[str, Any]]:
+            ) -> tuple[Build, Confirmation]:
     """Settle a build; repair and settle again while blocks fail.
 
     Each round takes the failed blocks out, with every block resting on
     them. If a repair and one more settle fit before ``end`` (a
-    ``time.monotonic()`` value; a repair gets at most half the time left
+    ``problem.now()`` value; a repair gets at most half the time left
     after reserving one settle), the beam search places blocks again under
     the local check; otherwise the layout stays short of them. The rounds
     end when the settle verdict is stable, so what is returned always
     stands, even if it is smaller (a settled empty layout is trivially
     stable).
 
-    Returns the build and a summary: ``stable``, ``max_displacement_m``,
-    ``max_rotation_deg``, ``unstable`` (ids in crane order), ``rounds``,
-    ``repaired`` (blocks taken out) and ``seconds``.
+    Returns the build and its :class:`Confirmation`.
     """
-    from .beam import BeamSearch
-
-    start = time.monotonic()
+    start = problem.now()
     repaired = 0
     rounds = 0
     while True:
-        t = time.monotonic()
+        t = problem.now()
         result = settle(problem.scene, build.placed(), seed=int(rng.integers(2**31)))
-        cost = time.monotonic() - t
+        cost = problem.now() - t
         if result.stable or not len(build):
             break
         rounds += 1
@@ -103,21 +132,21 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
         for k in sorted(failed, key=build.order.index, reverse=True):
             smaller.remove(k)
         repaired += len(failed)
-        left = (end if end is not None else problem.deadline) - time.monotonic() - cost
+        left = (end if end is not None else problem.deadline) - problem.now() - cost
         if rounds <= ROUNDS and left > 2 * cost + 1.0:
-            problem.deadline = time.monotonic() + left  # the repair must leave room for a settle
+            # The repair must leave room for a settle: it is asked with a deadline of its own.
+            repair = replace(problem, deadline=problem.now() + left)
             beam = BeamSearch(width=2, accept=local_check, origin=origin, restarts=1, share=0.5)
-            build = beam.run(problem, smaller, rng)
+            build = beam.run(repair, Phase(smaller, origin=origin), rng).build
         else:
             build = smaller  # out of rounds or time: keep what stands
     rank = {k: i for i, k in enumerate(build.order)}
-    info = {
-        "stable": bool(result.stable),
-        "max_displacement_m": result.max_displacement_m,
-        "max_rotation_deg": result.max_rotation_deg,
-        "unstable": sorted(rank[k] for k in result.unstable_ids if k in rank),
-        "rounds": rounds,
-        "repaired": repaired,
-        "seconds": time.monotonic() - start,
-    }
-    return build, info
+    return build, Confirmation(
+        stable=bool(result.stable),
+        max_displacement_m=result.max_displacement_m,
+        max_rotation_deg=result.max_rotation_deg,
+        unstable=sorted(rank[k] for k in result.unstable_ids if k in rank),
+        rounds=rounds,
+        repaired=repaired,
+        seconds=problem.now() - start,
+    )

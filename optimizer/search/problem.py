@@ -1,10 +1,15 @@
-"""Search strategies: the shared interface, in optuna's sampler model.
+"""What a search is asked, and what each of its phases hands on.
 
 A strategy is an ``abc.ABC`` subclass with one abstract method, passed in as
-an instance (``optimize(scene, strategies=[BeamSearch(), Annealing()])``).
-Its hooks default to doing nothing. The only table that maps strategy names to
-classes is at the CLI edge (``optimizer/cli_optimize.py``). Every strategy
+an instance (``optimize(scene, strategies=[BeamSearch(), Annealing()])``),
+in optuna's sampler model (STYLE.md). The only table that maps strategy names
+to classes is at the CLI edge (``optimizer/cli/optimize.py``). Every strategy
 passes the same contract suite (``tests/test_strategies.py``).
+
+Phases talk through types, not dicts: a strategy returns a :class:`Phase`,
+its build with typed :class:`Stats`, and the next strategy receives it. The
+:class:`Problem` is frozen: no phase changes what is asked (a repair that
+needs its own deadline asks a copy, ``dataclasses.replace``).
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import abc
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -21,8 +27,11 @@ from geometry.scene import Scene
 from .build import Build
 from .patterns import InterlockLattice
 
+#: A clock: seconds, monotonic. ``time.monotonic`` unless a test injects one.
+Clock = Callable[[], float]
 
-@dataclass
+
+@dataclass(frozen=True)
 class Problem:
     """What to build.
 
@@ -38,11 +47,12 @@ class Problem:
     families : tuple of str
         Hangings the search may use ("crown", "level", "horizontal", "free").
     deadline : float
-        ``time.monotonic()`` value by which a strategy must return.
+        Clock value by which a strategy must return.
     report : callable, optional
         ``report(phase, build, message)``: progress for the CLI's display.
-    origin : (float, float) or None
-        The pattern origin the beam search settled on, for later strategies.
+    clock : callable
+        The clock every deadline is read on (``time.monotonic``); tests
+        inject one to check the deadline logic without timing anything.
     """
 
     scene: Scene
@@ -52,14 +62,48 @@ class Problem:
     families: tuple[str, ...] = ("crown", "level", "horizontal")
     deadline: float = field(default_factory=lambda: time.monotonic() + 60.0)
     report: Callable[[str, Build, str], None] | None = None
-    origin: tuple[float, float] | None = None
+    clock: Clock = time.monotonic
+
+    def now(self) -> float:
+        return self.clock()
 
     def time_left(self) -> float:
-        return self.deadline - time.monotonic()
+        return self.deadline - self.clock()
 
     def tell(self, phase: str, build: Build, message: str = "") -> None:
         if self.report is not None:
             self.report(phase, build, message)
+
+
+@dataclass(frozen=True)
+class Stats:
+    """Figures about one phase's run. Strategies subclass it with their own fields."""
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            out[name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+
+@dataclass(frozen=True)
+class Phase:
+    """What a strategy hands on: its build, its figures, and the pattern origin in use.
+
+    Attributes
+    ----------
+    build : Build
+    stats : Stats
+    origin : (float, float) or None
+        The pattern origin the layout was laid from, for the strategies after
+        it (annealing relocates blocks to the pattern's sites); None before a
+        pattern was chosen.
+    """
+
+    build: Build
+    stats: Stats = field(default_factory=Stats)
+    origin: tuple[float, float] | None = None
 
 
 class Strategy(abc.ABC):
@@ -73,14 +117,11 @@ class Strategy(abc.ABC):
     name: str = "strategy"
 
     @abc.abstractmethod
-    def run(self, problem: Problem, build: Build | None, rng: np.random.Generator) -> Build:
-        """Return a build for ``problem``, starting from ``build`` (None: from nothing).
+    def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
+        """Return a phase for ``problem``, starting from ``previous`` (None: from nothing).
 
         The returned build is valid: no interpenetration (FCL), every block
         inside the tolerance zone and resting on what it was lowered onto, in
         an order a crane can follow. It may hold fewer blocks than required.
+        The input build is never changed.
         """
-
-    def stats(self) -> dict[str, float]:
-        """Figures about the last run (e.g. a bound), for the result. Default: none."""
-        return {}

@@ -1,0 +1,72 @@
+"""What every ``shoha`` command shares: output, path checks, option parsing."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import click
+
+from geometry.errors import InputError
+
+
+def emit(payload: dict[str, Any], as_json: bool, human: str) -> None:
+    """Print one JSON object (``--json``) or a line for people, on stdout."""
+    if as_json:
+        click.echo(json.dumps(payload, allow_nan=False))
+    else:
+        click.echo(human)
+
+
+def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
+    """Validate an output path before any work is done."""
+    p = Path(path)
+    if suffixes and p.suffix.lower() not in suffixes:
+        raise InputError(f"{path}: output must end in {' or '.join(suffixes)}")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{path}: folder {parent} does not exist")
+    if p.is_dir():
+        raise InputError(f"{path}: is a folder, not a file")
+    return p
+
+
+def parse_origin(text: str) -> tuple[float, float, float]:
+    """``--origin X,Y,Z``, metres."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise InputError(f"--origin {text!r}: expected three numbers X,Y,Z in metres")
+    return values  # type: ignore[return-value]
+
+
+def json_option(f: Callable[..., Any]) -> Callable[..., Any]:
+    """The ``--json`` flag every command takes."""
+    return click.option("--json", "as_json", is_flag=True, help="Print one JSON object.")(f)
+
+
+class Group(click.Group):
+    """A click group that lists commands in the order they were added."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(self.commands)
+
+
+SAVE_FORMATS = click.Choice(["auto", "layout", "unity"])
+
+
+def save_options(f: Any) -> Any:
+    """The options that say how to read a save (as in ``shoha convert``)."""
+    f = click.option("--origin", default="0,0,0", show_default=True,
+                     help="Unity saves: world position X,Y,Z (m) of Unity's origin.")(f)
+    f = click.option("--block", "block_type", default="shake-4t", show_default=True,
+                     help="Unity saves: block type of saved blocks that name none.")(f)
+    f = click.option("--from", "source", type=SAVE_FORMATS, default="auto", show_default=True,
+                     help="Format of the save: shoha-layout/1, the simulator's Unity JSON, "
+                          "or auto (told apart by content).")(f)
+    return f

@@ -1,0 +1,70 @@
+"""``shoha scene``: a scene's measures and its meshes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from geometry.errors import InputError
+
+from .common import Group, emit, json_option
+
+
+@click.group("scene", cls=Group)
+def scene() -> None:
+    """Breakwater scenes: design prism, tolerance zone, foundation."""
+
+
+@scene.command("info")
+@click.argument("scene_name", metavar="SCENE")
+@json_option
+def scene_info(scene_name: str, as_json: bool) -> None:
+    """A scene's measures."""
+    from geometry.scene import load_scene
+
+    s = load_scene(scene_name)
+    payload = {
+        "name": s.name,
+        "kind": s.kind,
+        "block": s.block_type,
+        "design_volume_m3": s.design_volume,
+        "tolerance_volume_m3": s.tolerance.volume,
+        "required_blocks": s.required_blocks,
+        "target_porosity_percent": s.target_porosity,
+        "crest_width_m": s.crest_width,
+        "height_m": s.height,
+        "slope_run_per_rise": s.slope,
+        "length_m": s.length,
+        "foundation": s.foundation.kind,
+    }
+    human = (f"{s.name}: {s.block_type}, design {s.design_volume:.2f} m3, tolerance "
+             f"{s.tolerance.volume:.2f} m3, {s.required_blocks} blocks required for "
+             f"{s.target_porosity:g}% porosity")
+    emit(payload, as_json, human)
+
+
+@scene.command("export")
+@click.argument("scene_name", metavar="SCENE")
+@click.option("--out", required=True, help="Folder for design.stl and tolerance.stl.")
+@json_option
+def scene_export(scene_name: str, out: str, as_json: bool) -> None:
+    """Write the design and tolerance prisms as watertight STL meshes (world frame)."""
+    import trimesh
+
+    from geometry.fileio import atomic_write
+    from geometry.scene import load_scene
+
+    s = load_scene(scene_name)
+    folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{out}: is a file, not a folder")
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for label, prism in (("design", s.design), ("tolerance", s.tolerance)):
+        poly = prism.polytope
+        mesh = trimesh.Trimesh(poly.vertices, poly.faces, process=True)
+        path = folder / f"{label}.stl"
+        atomic_write(path, mesh.export(file_type="stl"))
+        paths.append(str(path))
+    emit({"paths": paths}, as_json, "wrote " + ", ".join(paths))
