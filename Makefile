@@ -47,6 +47,7 @@ screenshots: $(VENV)/.installed-test
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check geometry settle optimizer benchmarks tests
+	$(BIN)/lint-imports
 
 clean:
 	rm -rf $(VENV) $(OUT) build *.egg-info
