@@ -1,6 +1,6 @@
 """Wave-dissipating blocks: their solid, their convex pieces and their measures.
 
-Built-in names (CONTRACT.md, "Built-in names"):
+Built-in names (docs/contract.md, "Built-in names"):
 
 ``shake-4t``
     The 4-ton Shake Block of the reference paper, fitted to its Table I.
@@ -175,7 +175,7 @@ def _parse_floats(name: str, text: str, n: int) -> list[float]:
 
 # --- shake-4t -------------------------------------------------------------------
 
-# Directions of the four legs: leg 0 along +z (CONTRACT.md), legs 1-3 at the
+# Directions of the four legs: leg 0 along +z (docs/contract.md), legs 1-3 at the
 # tetrahedral angle arccos(-1/3) from it, 120 degrees apart in azimuth.
 _S = np.sqrt(8.0 / 9.0)
 LEG_DIRECTIONS = np.array(

@@ -22,7 +22,7 @@ from .tolerance import out_of_tolerance
 
 @dataclass
 class CheckReport:
-    """What ``shoha check`` reports (CONTRACT.md keys via :meth:`to_dict`)."""
+    """What ``shoha check`` reports (docs/contract.md keys via :meth:`to_dict`)."""
 
     blocks: int
     required_blocks: int

@@ -17,7 +17,7 @@ class Tolerances:
     ----------
     quaternion_norm : float
         A file quaternion whose norm is within this of 1 is normalised; any
-        other norm is an input error (CONTRACT.md, layout file).
+        other norm is an input error (docs/contract.md, layout file).
     distance : float, metres
         Two points closer than this are the same point. Used when testing
         whether a vertex lies inside a half-space.

@@ -1,7 +1,7 @@
 """The error raised for bad input.
 
 The CLI turns an :class:`InputError` into one line on stderr and exit status 2
-(CONTRACT.md, "Exit codes and errors"). Anything else escaping the CLI is a bug.
+(docs/contract.md, "Exit codes and errors"). Anything else escaping the CLI is a bug.
 """
 
 from __future__ import annotations

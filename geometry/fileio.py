@@ -1,6 +1,6 @@
 """Reading and writing user files safely.
 
-Output files are written whole or not at all (CONTRACT.md: on bad input no
+Output files are written whole or not at all (docs/contract.md: on bad input no
 output file is written, "not even a partial one"). JSON input is parsed
 strictly: NaN and Infinity, which Python's json accepts by default, are
 rejected, as are files too large to be a layout.

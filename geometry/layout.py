@@ -1,6 +1,6 @@
 """Layouts: which blocks stand where, in installation order.
 
-The file format is ``shoha-layout/1`` (CONTRACT.md, "Layout file")::
+The file format is ``shoha-layout/1`` (docs/contract.md, "Layout file")::
 
     {"format": "shoha-layout/1",
      "scene": "mini",

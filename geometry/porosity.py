@@ -5,7 +5,7 @@ eq. (1) of the reference paper::
 
     Phi = (V_B - V_b) / V_B * 100 %
 
-Three methods (CONTRACT.md, ``shoha porosity --method``):
+Three methods (docs/contract.md, ``shoha porosity --method``):
 
 ``exact``
     Solid geometry. Each block contributes its volume clipped to the design

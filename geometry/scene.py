@@ -138,7 +138,7 @@ class Scene:
         """The ``scene`` value of a layout file that refers to this scene.
 
         A built-in name as it is; a scene file as a path relative to the
-        layout's folder (CONTRACT.md: resolved relative to the layout file).
+        layout's folder (docs/contract.md: resolved relative to the layout file).
         """
         if self.source is None or self.source in builtin_scenes():
             return self.source or self.name
@@ -184,7 +184,7 @@ def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = Non
     """A scene by built-in name, or from a TOML file.
 
     A relative path is resolved against ``base_dir`` (the layout file's
-    folder, CONTRACT.md), then the working directory.
+    folder, docs/contract.md), then the working directory.
 
     Raises
     ------

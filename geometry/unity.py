@@ -1,6 +1,6 @@
 """Simulator saves: Unity's left-handed, y-up frame to shoha's world frame.
 
-CONTRACT.md ("Simulator saves") fixes the conversion::
+docs/contract.md ("Simulator saves") fixes the conversion::
 
     p_world = (x_u, z_u, y_u) + origin
     R_world = P @ R_unity @ P          P swaps y and z

@@ -5,7 +5,7 @@
     from optimizer.api import optimize
     result = optimize(load_scene("mini"), seed=1, time_limit=120)
     result.layout         # shoha-layout/1, crane order
-    result.to_dict()      # the CONTRACT keys of `shoha optimize --json`
+    result.to_dict()      # the keys of `shoha optimize --json` (docs/contract.md)
 
 The pipeline, each step a pluggable strategy instance:
 

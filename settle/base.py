@@ -354,7 +354,7 @@ class SettleResult:
         return [b.id for b in self.blocks if not b.stable]
 
     def to_dict(self) -> dict[str, Any]:
-        """The keys of ``shoha settle --json`` (CONTRACT.md, "CLI"), and a few more."""
+        """The keys of ``shoha settle --json`` (docs/contract.md, "CLI"), and a few more."""
         return {
             "stable": self.stable,
             "max_displacement_m": self.max_displacement_m,

@@ -1,4 +1,4 @@
-"""The shoha command line, run as a user runs it (CONTRACT.md, "CLI")."""
+"""The shoha command line, run as a user runs it (docs/contract.md, "CLI")."""
 
 from __future__ import annotations
 

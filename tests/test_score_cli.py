@@ -1,4 +1,4 @@
-"""``shoha score`` run as a user runs it: JSON keys, Unity saves, bad input (CONTRACT.md)."""
+"""``shoha score`` run as a user runs it: JSON keys, Unity saves, bad input (docs/contract.md)."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ CONTRACT_KEYS = {"score", "porosity_percent", "reference_porosity_percent", "out
 
 
 def to_unity_save(layout, origin) -> dict:
-    """A layout as the simulator saves it (CONTRACT.md, "Simulator saves"), written out by hand.
+    """A layout as the simulator saves it (docs/contract.md, "Simulator saves"), written out by hand.
 
     World (x, y, z) = (x_u, z_u, y_u) + origin, and a world quaternion
     [w, X, Y, Z] is the Unity quaternion (x, y, z, w) = (-X, -Z, -Y, w).

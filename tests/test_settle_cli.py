@@ -1,4 +1,4 @@
-"""``shoha settle`` as a user runs it (CONTRACT.md, "CLI" and "Exit codes and errors")."""
+"""``shoha settle`` as a user runs it (docs/contract.md, "CLI" and "Exit codes and errors")."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ no CDN, no other request), and shows:
 * the porosity map by zone, the trainee's beside the reference's;
 * the metrics table and the faulty blocks by id.
 
-World frame, metres, throughout (CONTRACT.md).
+World frame, metres, throughout (docs/contract.md).
 """
 
 from __future__ import annotations

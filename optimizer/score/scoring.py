@@ -347,7 +347,7 @@ class ScoreReport:
         return self.settle.unstable_ids
 
     def to_dict(self) -> dict[str, Any]:
-        """The keys of ``shoha score --json`` (CONTRACT.md, "CLI"), and more."""
+        """The keys of ``shoha score --json`` (docs/contract.md, "CLI"), and more."""
         s = self.settle
         return {
             "score": self.score,
