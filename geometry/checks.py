@@ -14,6 +14,7 @@ from typing import Any
 
 from .blocks import Block
 from .collision import Collision, collisions
+from .coverage import CoverageReport, coverage
 from .porosity import porosity
 from .pose import Pose
 from .scene import Scene
@@ -29,6 +30,7 @@ class CheckReport:
     out_of_tolerance: list[tuple[int, float]] = field(default_factory=list)
     collisions: list[Collision] = field(default_factory=list)
     porosity_percent: float = 100.0
+    coverage: CoverageReport | None = None
     seconds: float = 0.0
 
     @property
@@ -43,6 +45,7 @@ class CheckReport:
             "out_of_tolerance": [{"id": k, "outside_volume_m3": v} for k, v in self.out_of_tolerance],
             "collisions": [{"a": c.a, "b": c.b, "depth_m": c.depth} for c in self.collisions],
             "porosity_percent": self.porosity_percent,
+            **({"coverage": self.coverage.to_dict()} if self.coverage is not None else {}),
             "seconds": self.seconds,
         }
 
@@ -55,11 +58,19 @@ class CheckReport:
             f"collisions: {len(self.collisions)}"
             + "".join(f"\n  blocks {c.a} and {c.b}: {c.depth * 1000:.1f} mm deep" for c in self.collisions),
         ]
+        if self.coverage is not None:
+            c = self.coverage
+            worst = ("" if c.to_dict()["max_bare_m"] is None else
+                     f", farthest {c.max_bare_m:.2f} m from a block at "
+                     f"({', '.join(f'{v:.2f}' for v in c.worst_point)})")
+            lines.append(f"bare: {c.bare_share_percent:.1f}% of the slopes and crest more than "
+                         f"{c.bare_distance_m:.2f} m (H/2) from every block{worst}")
         return "\n".join(lines)
 
 
-def check_layout(scene: Scene, placed: Sequence[tuple[int, Block, Pose]]) -> CheckReport:
-    """Run every check on a layout."""
+def check_layout(scene: Scene, placed: Sequence[tuple[int, Block, Pose]],
+                 with_coverage: bool = True) -> CheckReport:
+    """Run every check on a layout; ``with_coverage=False`` leaves out the coverage (tenths of a second)."""
     start = time.perf_counter()
     report = CheckReport(
         blocks=len(placed),
@@ -67,6 +78,7 @@ def check_layout(scene: Scene, placed: Sequence[tuple[int, Block, Pose]]) -> Che
         out_of_tolerance=out_of_tolerance(list(placed), scene.tolerance),
         collisions=collisions(placed),
         porosity_percent=porosity(scene, placed, "exact").percent,
+        coverage=coverage(scene, placed) if with_coverage else None,
     )
     report.seconds = time.perf_counter() - start
     return report

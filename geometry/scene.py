@@ -14,6 +14,7 @@ named by their file stem (``mini``). A scene file looks like this::
     height_m = 3.0
     slope_rise_run = [3.0, 4.0]      # 3 up for 4 across
     length_m = 12.220833333333333
+    # wall = true                    # a wall face on the landward side (-x), at -crest_width_m / 2
 
     [tolerance]                      # optional; each defaults to H/3 (Table II)
     crest_rise_m = 0.5533
@@ -108,6 +109,10 @@ class Scene:
         The block type name, as in layout files.
     crest_width, height, slope, length : float
         The design parameters, metres; ``slope`` is run per unit rise.
+    wall : bool
+        The landward side (-x) is a vertical wall face at ``x = -crest_width / 2``
+        (a mound in front of a caisson or seawall): the design and tolerance
+        prisms stop at it, blocks may not cross it, and the settle holds it fixed.
     target_porosity : float, percent
     required_blocks : int
     allowance : Allowance
@@ -133,6 +138,7 @@ class Scene:
     foundation: Foundation = field(default_factory=Foundation)
     base_dir: str | None = None
     source: str | None = None
+    wall: bool = False
 
     def reference(self, layout_dir: str | os.PathLike | None = None) -> str:
         """The ``scene`` value of a layout file that refers to this scene.
@@ -152,7 +158,7 @@ class Scene:
 
     @cached_property
     def design(self) -> TrapezoidalPrism:
-        return design_prism(self.crest_width, self.height, self.slope, self.length)
+        return design_prism(self.crest_width, self.height, self.slope, self.length, self.wall)
 
     @cached_property
     def tolerance(self) -> TrapezoidalPrism:
@@ -211,7 +217,7 @@ def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = Non
 
 _TOP_KEYS = {"name", "kind", "block", "target_porosity_percent", "required_blocks",
              "design", "tolerance", "foundation"}
-_DESIGN_KEYS = {"crest_width_m", "height_m", "slope_rise_run", "length_m"}
+_DESIGN_KEYS = {"crest_width_m", "height_m", "slope_rise_run", "length_m", "wall"}
 _TOLERANCE_KEYS = {"crest_rise_m", "crest_widening_m", "slope_lengthening_m", "end_extension_m"}
 _FOUNDATION_KEYS = {"kind", "amplitude_m", "cell_m", "seed"}
 
@@ -248,6 +254,9 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
             or not all(_is_num(v) and 0 < v < 1e6 for v in rise_run)):
         raise InputError(f"{source}: [design] slope_rise_run must be two positive numbers, e.g. [3, 4]")
     slope = float(rise_run[1]) / float(rise_run[0])
+    wall = design.get("wall", False)
+    if not isinstance(wall, bool):
+        raise InputError(f"{source}: [design] wall must be true or false, not {wall!r}")
     for key, value in (("crest_width_m", crest_width), ("height_m", height), ("length_m", length)):
         if value > 10_000:
             raise InputError(f"{source}: [design] {key} = {value} m is not a breakwater")
@@ -279,7 +288,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     scene = Scene(
         name=name, kind=kind, block_type=block_type, crest_width=crest_width, height=height,
         slope=slope, length=length, target_porosity=target, required_blocks=0,
-        allowance=allowance, foundation=Foundation(), base_dir=base_dir,
+        allowance=allowance, foundation=Foundation(), base_dir=base_dir, wall=wall,
     )
     zone = scene.tolerance
     margin = 2.0 * block.bounding_radius
@@ -297,7 +306,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     return Scene(
         name=name, kind=kind, block_type=block_type, crest_width=crest_width, height=height,
         slope=slope, length=length, target_porosity=target, required_blocks=required,
-        allowance=allowance, foundation=foundation, base_dir=base_dir, source=reference,
+        allowance=allowance, foundation=foundation, base_dir=base_dir, source=reference, wall=wall,
     )
 
 

@@ -27,6 +27,11 @@ Construction used here (see ``docs/tolerance.md`` for the figure):
    reaches ``tol.contact_depth`` (5 mm) further down in any case: a block
    that a physics settle or the simulator presses a few millimetres into the
    foundation is resting on it, as it would be resting on another block.
+6. A wall-backed section (a mound in front of a caisson or seawall,
+   ``[design] wall = true``) has a vertical wall face on its landward side,
+   at ``x = -crest_width / 2``: the design and the zone both stop at it, and
+   the crest, which can only widen seaward, takes the whole ``crest_widening``
+   on that side.
 
 The design prism lies inside this zone for any non-negative allowances.
 """
@@ -47,10 +52,11 @@ from .pose import Pose
 
 @dataclass(frozen=True)
 class TrapezoidalPrism:
-    """A symmetric trapezoidal prism along +y.
+    """A trapezoidal prism along +y, symmetric about x = 0 unless a wall cuts it.
 
-    Its cross-section in the x-z plane is centred on x = 0. All in metres,
-    world frame.
+    Its cross-section in the x-z plane is a trapezoid centred on x = 0, whose
+    landward side (-x) is, where ``wall_x`` is set, the vertical face
+    ``x = wall_x`` instead of the slope. All in metres, world frame.
     """
 
     bottom_half_width: float
@@ -59,6 +65,7 @@ class TrapezoidalPrism:
     z_top: float
     y_start: float
     y_end: float
+    wall_x: float | None = None
 
     @property
     def height(self) -> float:
@@ -70,7 +77,9 @@ class TrapezoidalPrism:
 
     @property
     def section_area(self) -> float:
-        return (self.bottom_half_width + self.top_half_width) * self.height
+        """Area of the cross-section, m^2 (the shoelace formula over :attr:`section`)."""
+        x, z = self.section[:, 0], self.section[:, 1]
+        return float(0.5 * abs(np.dot(x, np.roll(z, -1)) - np.dot(z, np.roll(x, -1))))
 
     @property
     def volume(self) -> float:
@@ -78,9 +87,13 @@ class TrapezoidalPrism:
         return self.section_area * self.length
 
     def half_width(self, z: float) -> float:
-        """Half width of the cross-section at height ``z`` (the slopes carried on)."""
+        """Half width of the cross-section at height ``z`` (the slopes carried on, the wall ignored)."""
         return self.bottom_half_width + (self.top_half_width - self.bottom_half_width) * (
             z - self.z_bottom) / self.height
+
+    def left(self, z: float) -> float:
+        """The landward edge of the cross-section at height ``z``: the wall, or the slope."""
+        return self.wall_x if self.wall_x is not None else -self.half_width(z)
 
     def cut(self, slices: int, layers: int) -> list[TrapezoidalPrism]:
         """The prism cut into ``slices`` equal lengths along y and ``layers`` equal heights.
@@ -91,14 +104,15 @@ class TrapezoidalPrism:
         ys = np.linspace(self.y_start, self.y_end, slices + 1)
         zs = np.linspace(self.z_bottom, self.z_top, layers + 1)
         return [TrapezoidalPrism(self.half_width(zs[j]), self.half_width(zs[j + 1]), float(zs[j]),
-                                 float(zs[j + 1]), float(ys[i]), float(ys[i + 1]))
+                                 float(zs[j + 1]), float(ys[i]), float(ys[i + 1]), self.wall_x)
                 for i in range(slices) for j in range(layers)]
 
     @property
     def section(self) -> np.ndarray:
         """(4, 2) float: the cross-section's corners (x, z), counter-clockwise from bottom left."""
         b, t = self.bottom_half_width, self.top_half_width
-        return np.array([[-b, self.z_bottom], [b, self.z_bottom], [t, self.z_top], [-t, self.z_top]])
+        return np.array([[self.left(self.z_bottom), self.z_bottom], [b, self.z_bottom], [t, self.z_top],
+                         [self.left(self.z_top), self.z_top]])
 
     @property
     def corners(self) -> np.ndarray:
@@ -146,7 +160,8 @@ class Allowance:
         return cls(third, third, third, third)
 
 
-def design_prism(crest_width: float, height: float, slope: float, length: float) -> TrapezoidalPrism:
+def design_prism(crest_width: float, height: float, slope: float, length: float,
+                 wall: bool = False) -> TrapezoidalPrism:
     """The design trapezoidal prism.
 
     Parameters
@@ -158,8 +173,11 @@ def design_prism(crest_width: float, height: float, slope: float, length: float)
         Horizontal run per unit rise of each side slope (4/3 for a 3:4 slope).
     length : float, m
         Length along the crest, from y = 0 to y = length.
+    wall : bool
+        A wall face on the landward side, at ``x = -crest_width / 2``, instead of a slope.
     """
-    return TrapezoidalPrism(crest_width / 2 + slope * height, crest_width / 2, 0.0, height, 0.0, length)
+    return TrapezoidalPrism(crest_width / 2 + slope * height, crest_width / 2, 0.0, height, 0.0, length,
+                            -crest_width / 2 if wall else None)
 
 
 def tolerance_prism(
@@ -182,13 +200,14 @@ def tolerance_prism(
             f"tolerance: slope length {new_length:.3f} m does not exceed height {new_h:.3f} m"
         )
     new_run = np.sqrt(new_length**2 - new_h**2)
-    top = design.top_half_width + a.crest_widening / 2
+    # Behind a wall the crest can widen only seaward: it takes the whole widening there.
+    top = design.top_half_width + (a.crest_widening if design.wall_x is not None else a.crest_widening / 2)
     z_top = design.z_top + a.crest_rise
     # Extend the slope lines below the foundation top where the zone goes deeper.
     bottom = top + new_run * (z_top - z_bottom) / (z_top - design.z_bottom)
     return TrapezoidalPrism(
         float(bottom), float(top), float(z_bottom), float(z_top),
-        design.y_start - a.end_extension, design.y_end + a.end_extension,
+        design.y_start - a.end_extension, design.y_end + a.end_extension, design.wall_x,
     )
 
 

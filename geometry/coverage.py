@@ -1,0 +1,276 @@
+"""Coverage: how much of the mound's surface the blocks cover.
+
+Waves meet a wave-dissipating mound on its seaward face, and its toe holds the
+slope up: a layout that meets the porosity with a dense core and bare slopes
+does its job badly. A point of the design prism's slopes and crest is *bare*
+when it lies more than ``H / 2`` from every block, H being the block height.
+The ends, the base and a wall face are left out: no wave reaches them.
+
+:func:`coverage` measures a layout (``shoha check``, the report, the score):
+
+* ``bare_share_percent``: the share of the slopes' and crest's area that is bare;
+* ``max_bare_m``: the largest distance from a point of them to the nearest block;
+* ``worst_point``: where that distance is.
+
+The surface is sampled on a grid of cells about ``H / 16`` wide, each point
+standing for its cell's area. A point's distance to a block is exact: zero
+inside a convex piece, else the distance to the nearest triangle of a piece's
+hull. Most points are settled without it: each block's surface is also sampled,
+no two samples further apart than ``spacing``, so the distance to the nearest
+sample is at least the true distance and at most ``spacing`` more; only points
+that bound leaves undecided, and the points near the largest distance, are
+measured exactly.
+
+:class:`CoverageTracker` keeps the same count up to date as blocks are added
+and removed, on the sample bound alone (a point counts as covered only when a
+block sample is within ``H / 2``, so it never counts more than is covered): the
+optimizer lives on it.
+"""
+
+from __future__ import annotations
+
+import math
+import weakref
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .blocks import Block
+from .pose import Pose
+from .scene import Scene
+
+#: Surface cells per block height: the design surface is sampled every H / 16
+#: (10 cm for the 4-ton Shake Block), fine enough that a bare patch a tenth of
+#: H wide is seen.
+CELLS_PER_H = 16
+
+#: Bare means further than this fraction of the block height H from every block.
+BARE_FRACTION = 0.5
+
+Placed = Sequence[tuple[int, Block, Pose]]
+
+
+@dataclass(frozen=True)
+class SurfaceSamples:
+    """Points standing for the design prism's slopes and crest.
+
+    Attributes
+    ----------
+    points : (n, 3) float, metres, world frame
+    area : (n,) float, square metres
+        The area each point stands for: a cell's, or zero for the points on
+        a face's edges, which only the largest bare distance looks at.
+    face : (n,) int
+        0 the seaward slope (+x), 1 the crest, 2 the landward slope (absent behind a wall).
+    spacing : float, metres
+    """
+
+    points: np.ndarray
+    area: np.ndarray
+    face: np.ndarray
+    spacing: float
+
+    FACES = ("seaward slope", "crest", "landward slope")
+
+
+def surface_samples(scene: Scene, spacing: float | None = None) -> SurfaceSamples:
+    """Cell-centred samples of the design prism's slopes and crest (ends, base and a wall left out)."""
+    prism = scene.design
+    h = scene.block.height
+    spacing = float(spacing if spacing is not None else h / CELLS_PER_H)
+    ny = max(1, math.ceil(prism.length / spacing))
+    ys = prism.y_start + (np.arange(ny) + 0.5) * prism.length / ny
+    dy = prism.length / ny
+    parts = []
+    top, bottom = prism.top_half_width, prism.bottom_half_width
+    z0, z1 = prism.z_bottom, prism.z_top
+    # (start (x, z), end (x, z), face) of each face of the section, as lines in x-z.
+    lines = [((bottom, z0), (top, z1), 0), ((prism.left(z1), z1), (top, z1), 1)]
+    if prism.wall_x is None:
+        lines.append(((-bottom, z0), (-top, z1), 2))
+    for (xa, za), (xb, zb), face in lines:
+        length = math.hypot(xb - xa, zb - za)
+        if length <= 0.0:
+            continue
+        n = max(1, math.ceil(length / spacing))
+        # Cell centres carry the area; the face's two edges (the toe, the crest's edge) are
+        # sampled too, with no area, so that the largest bare distance is found where it
+        # usually is, at the toe, and not half a cell from it.
+        t = np.concatenate([(np.arange(n) + 0.5) / n, [0.0, 1.0]])
+        weight = np.concatenate([np.full(n, length / n * dy), [0.0, 0.0]])
+        xz = np.column_stack([xa + t * (xb - xa), za + t * (zb - za)])
+        grid = np.column_stack([np.repeat(xz[:, 0], ny), np.tile(ys, len(t)), np.repeat(xz[:, 1], ny)])
+        parts.append((grid, np.repeat(weight, ny), np.full(len(grid), face)))
+    points = np.concatenate([p for p, _, _ in parts])
+    return SurfaceSamples(points, np.concatenate([a for _, a, _ in parts]),
+                          np.concatenate([f for _, _, f in parts]), spacing)
+
+
+# --- a block's own surface, sampled -----------------------------------------------------------
+
+_SAMPLES: weakref.WeakKeyDictionary[Block, dict[float, np.ndarray]] = weakref.WeakKeyDictionary()
+
+
+def block_samples(block: Block, spacing: float) -> np.ndarray:
+    """Points on the block's surface, block frame, no point of it further than ``spacing`` from one.
+
+    Each triangle is cut into ``k x k`` smaller ones with edges at most
+    ``spacing`` long, and their corners are kept: every point of a triangle
+    lies within its longest edge of a corner.
+    """
+    cache = _SAMPLES.setdefault(block, {})
+    out = cache.get(spacing)
+    if out is not None:
+        return out
+    tri = block.vertices[block.faces]
+    edge = np.max(np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2), axis=1)
+    pts = [block.vertices]
+    for k in np.unique(np.maximum(1, np.ceil(edge / spacing)).astype(int)):
+        if k == 1:
+            continue
+        t = tri[np.ceil(edge / spacing).astype(int) == k]
+        i, j = np.meshgrid(np.arange(k + 1), np.arange(k + 1), indexing="ij")
+        keep = (i + j) <= k
+        a, b = (i[keep] / k)[None, :, None], (j[keep] / k)[None, :, None]
+        pts.append((t[:, 0:1] * (1 - a - b) + t[:, 1:2] * a + t[:, 2:3] * b).reshape(-1, 3))
+    out = np.unique(np.round(np.concatenate(pts), 12), axis=0)
+    cache[spacing] = out
+    return out
+
+
+# --- exact distances ---------------------------------------------------------------------------
+
+
+def point_triangle_distance(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Distances from points ``p`` (m, 3) to triangles ``tri`` (m, 3, 3), pairwise, metres.
+
+    The closest point on each triangle by its Voronoi regions (Ericson,
+    *Real-Time Collision Detection*, 5.1.5), vectorised.
+    """
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = 1.0 / (va + vb + vc)
+        v, w = vb * denom, vc * denom
+        closest = a + ab * v[:, None] + ac * w[:, None]  # inside the face
+        # Edges and corners, from the last region checked to the first, so the first that holds wins.
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        edge_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+        closest = np.where(edge_bc[:, None], b + (c - b) * t_bc[:, None], closest)
+        t_ac = d2 / (d2 - d6)
+        edge_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        closest = np.where(edge_ac[:, None], a + ac * t_ac[:, None], closest)
+        t_ab = d1 / (d1 - d3)
+        edge_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        closest = np.where(edge_ab[:, None], a + ab * t_ab[:, None], closest)
+    closest = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, closest)
+    closest = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, closest)
+    closest = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, closest)
+    return np.linalg.norm(p - closest, axis=1)
+
+
+def distance_to_block(points: np.ndarray, block: Block, pose: Pose) -> np.ndarray:
+    """Exact distance (m) from world points (n, 3) to a posed block: 0 inside a piece, else to its hulls."""
+    local = pose.inverse_apply(points)
+    out = np.full(len(points), np.inf)
+    for piece in block.pieces:
+        inside = np.all(local @ piece.normals.T <= piece.offsets, axis=1)
+        out[inside] = 0.0
+        todo = np.flatnonzero(~inside & (out > 0.0))
+        if not len(todo):
+            continue
+        tri = piece.vertices[piece.faces]  # (t, 3, 3)
+        pp = np.repeat(local[todo], len(tri), axis=0)
+        d = point_triangle_distance(pp, np.tile(tri, (len(todo), 1, 1))).reshape(len(todo), len(tri))
+        out[todo] = np.minimum(out[todo], d.min(axis=1))
+    return out
+
+
+# --- the measure ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class CoverageReport:
+    """How much of the design surface the blocks cover.
+
+    Attributes
+    ----------
+    bare_share_percent : float
+        Area share of the slopes and crest more than ``bare_distance_m`` from every block.
+    max_bare_m : float
+        The largest distance from a point of them to the nearest block.
+    worst_point : (3,) float
+        Where that distance is, world frame (the first such point).
+    bare_distance_m : float
+        ``H / 2``.
+    spacing_m : float
+        The sampling cell.
+    bare : (n,) bool
+        Which samples are bare (for the report's picture).
+    samples : SurfaceSamples
+    """
+
+    bare_share_percent: float
+    max_bare_m: float
+    worst_point: tuple[float, float, float]
+    bare_distance_m: float
+    spacing_m: float
+    bare: np.ndarray
+    samples: SurfaceSamples
+
+    def to_dict(self) -> dict[str, Any]:
+        """The ``coverage`` object of ``shoha check --json`` (docs/contract.md)."""
+        empty = not math.isfinite(self.max_bare_m)
+        return {"bare_share_percent": self.bare_share_percent,
+                "max_bare_m": None if empty else self.max_bare_m,
+                "worst_point": None if empty else list(self.worst_point),
+                "bare_distance_m": self.bare_distance_m, "spacing_m": self.spacing_m}
+
+    def by_face(self) -> dict[str, float]:
+        """Bare share (percent) of each face."""
+        out = {}
+        for i, name in enumerate(SurfaceSamples.FACES):
+            on = self.samples.face == i
+            if on.any():
+                area = self.samples.area[on]
+                out[name] = float(100.0 * area[self.bare[on]].sum() / area.sum())
+        return out
+
+
+def coverage(scene: Scene, placed: Placed, spacing: float | None = None) -> CoverageReport:
+    """Bare share, largest bare distance and where it is, for a layout (module docstring).
+
+    With no blocks every point is bare, and the largest distance is infinite
+    (``max_bare_m`` and ``worst_point`` are then None in :meth:`CoverageReport.to_dict`).
+    """
+    samples = surface_samples(scene, spacing)
+    limit = BARE_FRACTION * scene.block.height
+    pts = samples.points
+    dist = np.full(len(pts), np.inf)
+    if placed:
+        step = samples.spacing
+        clouds = [pose.apply(block_samples(block, step)) for _, block, pose in placed]
+        owner = np.repeat(np.arange(len(placed)), [len(c) for c in clouds])
+        upper, nearest = cKDTree(np.concatenate(clouds)).query(pts)
+        dist = upper.copy()  # the true distance is in [upper - step, upper]
+        # Exact where the bound leaves the verdict open, and near the largest distance.
+        todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step)
+        centres = cKDTree(np.array([pose.position for _, _, pose in placed]))
+        radius = max(block.bounding_radius for _, block, _ in placed)
+        for i in np.flatnonzero(todo):
+            near = {int(owner[nearest[i]]), *centres.query_ball_point(pts[i], upper[i] + radius)}
+            dist[i] = min(float(distance_to_block(pts[i:i + 1], placed[k][1], placed[k][2])[0]) for k in near)
+    bare = dist > limit
+    share = float(100.0 * samples.area[bare].sum() / samples.area.sum())
+    worst = int(np.argmax(dist))
+    return CoverageReport(share, float(dist[worst]), tuple(float(v) for v in pts[worst]), float(limit),
+                          samples.spacing, bare, samples)

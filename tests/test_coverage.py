@@ -1,0 +1,113 @@
+"""Coverage of the design surface: the bare share, the largest bare distance, where it is."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from geometry.coverage import (
+    block_samples,
+    coverage,
+    distance_to_block,
+    point_triangle_distance,
+    surface_samples,
+)
+from geometry.pose import Pose, axis_angle_quat
+from geometry.scene import parse_scene
+
+# A box scene: 1 m cubes, a 4 m crest 1 m high with 1:1 slopes, 4 m long.
+BOX_TOML = """
+name = "boxes"
+block = "box:1x1x1"
+[design]
+crest_width_m = 4.0
+height_m = 1.0
+slope_rise_run = [1.0, 1.0]
+length_m = 4.0
+"""
+
+
+@pytest.fixture(scope="module")
+def boxes():
+    return parse_scene(BOX_TOML, "boxes.toml", None)
+
+
+def test_surface_samples_cover_the_slopes_and_crest_by_area(boxes, mini):
+    s = surface_samples(boxes)
+    # Two slopes of sqrt(2) m and a 4 m crest, 4 m long.
+    np.testing.assert_allclose(s.area.sum(), (2 * np.sqrt(2) + 4.0) * 4.0, rtol=1e-12)
+    m = surface_samples(mini)
+    np.testing.assert_allclose(m.area.sum(), (2 * 5.0 + 4.0) * mini.length, rtol=1e-12)
+
+
+def test_a_known_bare_patch(boxes):
+    """Cubes along the whole crest, none on the slopes: the slopes' far halves are bare.
+
+    A row of cubes standing on the foundation under the crest, at x = -1.5, -0.5,
+    0.5 and 1.5, covers the crest (their tops are the crest). A slope point at
+    height z lies (2 + (1 - z)) - 2 = 1 - z metres beyond the outer cube's face
+    in x, at the cube's height: bare when further than H/2 = 0.5 m, so the
+    lower half of each slope, z < 0.5, is bare, and the toe is 1 m away.
+    """
+    cube = boxes.block
+    spots = [(x, y) for x in (-1.5, -0.5, 0.5, 1.5) for y in (0.5, 1.5, 2.5, 3.5)]
+    placed = [(i, cube, Pose([x, y, 0.5], [1, 0, 0, 0])) for i, (x, y) in enumerate(spots)]
+    c = coverage(boxes, placed)
+    slope = 2 * np.sqrt(2) * 4.0
+    total = slope + 4.0 * 4.0
+    # The bare part: the lower half of each slope (up to the sampling cell).
+    assert c.bare_share_percent == pytest.approx(100 * (slope / 2) / total, abs=1.5)
+    assert c.max_bare_m == pytest.approx(1.0, abs=1e-6)
+    assert abs(c.worst_point[0]) == pytest.approx(3.0, abs=0.05) and c.worst_point[2] < 0.05
+    faces = c.by_face()
+    assert faces["crest"] == 0.0 and faces["seaward slope"] == pytest.approx(50.0, abs=3.0)
+
+
+def test_no_blocks_is_all_bare(boxes):
+    c = coverage(boxes, [])
+    assert c.bare_share_percent == 100.0
+    assert c.to_dict()["max_bare_m"] is None and c.to_dict()["worst_point"] is None
+
+
+def test_point_triangle_distance_against_trimesh():
+    rng = np.random.default_rng(0)
+    tri = rng.normal(size=(300, 3, 3))
+    p = rng.normal(size=(300, 3)) * 2
+    ours = point_triangle_distance(p, tri)
+    for i in range(300):
+        mesh = trimesh.Trimesh(tri[i], [[0, 1, 2]], process=False)
+        _, d, _ = trimesh.proximity.closest_point(mesh, p[i:i + 1])
+        assert ours[i] == pytest.approx(d[0], abs=1e-9)
+
+
+def test_distance_to_a_block_is_exact_and_zero_inside(shake):
+    pose = Pose([0.3, 5.0, 1.0], axis_angle_quat([1, 2, 3], 0.7))
+    rng = np.random.default_rng(1)
+    pts = pose.position + rng.normal(size=(200, 3)) * 1.5
+    ours = distance_to_block(pts, shake, pose)
+    # Against trimesh on the block's own surface, for points outside every piece.
+    mesh = trimesh.Trimesh(pose.apply(shake.vertices), shake.faces, process=False)
+    inside = mesh.contains(pts)
+    _, d, _ = trimesh.proximity.closest_point(mesh, pts[~inside])
+    np.testing.assert_allclose(ours[~inside], d, atol=1e-6)
+    assert np.all(ours[inside] == 0.0) and inside.any()
+
+
+def test_block_samples_leave_no_gap_wider_than_the_spacing(shake):
+    spacing = 0.1
+    pts = block_samples(shake, spacing)
+    rng = np.random.default_rng(2)
+    surface = trimesh.Trimesh(shake.vertices, shake.faces, process=False).sample(2000, seed=rng)
+    from scipy.spatial import cKDTree
+    d, _ = cKDTree(pts).query(surface)
+    assert d.max() <= spacing
+
+
+def test_mirror_images_have_the_same_coverage(boxes):
+    """A block and its mirror image across the axis: the section is symmetric, so is the measure."""
+    cube = boxes.block
+    a = [(0, cube, Pose([1.0, 2.0, 0.5], [1, 0, 0, 0]))]
+    b = [(0, cube, Pose([-1.0, 2.0, 0.5], [1, 0, 0, 0]))]
+    ca, cb = coverage(boxes, a), coverage(boxes, b)
+    assert ca.bare_share_percent == pytest.approx(cb.bare_share_percent, abs=1e-9)  # mirror images
