@@ -15,8 +15,11 @@ Built-in names (docs/contract.md, "Built-in names"):
 
 Every block is given in its block frame: origin at its centroid, and for the
 tetrapod-like blocks one leg along local +z, so that the block as given stands
-on its other three legs. Its height ``H`` is its extent along local z in that
-frame: the standing height of a tetrapod-like block, the ``H`` of Table II.
+on its other three legs. Its height ``H``, the ``H`` of Table II, is its height
+standing on its most stable rest pose: for the built-in blocks, whose frames
+are chosen so, its extent along local z; for a ``mesh:`` block, whose frame is
+its file's and may be turned any way, that height worked out from its shape
+(:attr:`Block.rest_poses`).
 """
 
 from __future__ import annotations
@@ -71,6 +74,9 @@ class Block:
     faces: np.ndarray
     pieces: tuple[ConvexPolytope, ...]
     density: float = CONCRETE_DENSITY
+    #: Whether the block frame is the one its file came in, not one chosen to stand
+    #: the block up (``mesh:`` blocks): its height is then taken from its rest poses.
+    file_frame: bool = False
 
     @cached_property
     def stack(self) -> PieceStack:
@@ -94,8 +100,19 @@ class Block:
 
     @cached_property
     def height(self) -> float:
-        """Height H, m: extent along local z (standing height for tetrapod-likes)."""
+        """Height H, m: its height standing on its most stable rest pose.
+
+        The extent along local z for the built-in blocks; for a block in its
+        file's frame, the extent along z of :attr:`rest_poses` ``[0]``.
+        """
+        if self.file_frame and self.rest_poses:
+            return float(np.ptp(self.rest_poses[0].turn(self.vertices)[:, 2]))
         return float(np.ptp(self.vertices[:, 2]))
+
+    @cached_property
+    def rest_poses(self) -> tuple[RestPose, ...]:
+        """How the block can rest on flat ground, most stable first (:func:`rest_poses`)."""
+        return rest_poses(self.vertices)
 
     @property
     def mass(self) -> float:
@@ -123,6 +140,112 @@ class Block:
             raise InputError(f"{path}: block export takes .stl, .obj or .glb, not {suffix!r}")
         data = self.trimesh.export(file_type=suffix)
         atomic_write(Path(path), data if isinstance(data, bytes) else data.encode())
+
+
+@dataclass(frozen=True, eq=False)
+class RestPose:
+    """One way a block rests on flat ground: a face of its convex hull down.
+
+    Attributes
+    ----------
+    quaternion : (4,) float, scalar first
+        The orientation (block frame to world) that puts the face down, its
+        outward normal along -z.
+    tip_deg : float, degrees
+        How far it must be tipped before it falls over: the angle at the
+        centroid between the vertical and the nearest edge of the face.
+    margin : float, metres
+        How far inside the face the centroid's projection lies.
+    centroid_height : float, metres
+        The centroid's height above the face.
+    contacts : int
+        Hull vertices on the face.
+    symmetry : int
+        The order of its symmetry about the vertical through the centroid: a
+        turn of ``2 pi / symmetry`` brings the block onto itself (1 if none).
+    """
+
+    quaternion: np.ndarray
+    tip_deg: float
+    margin: float
+    centroid_height: float
+    contacts: int
+    symmetry: int = 1
+
+    def turn(self, points: np.ndarray) -> np.ndarray:
+        """Block-frame points turned into this pose (about the centroid)."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_quat(self.quaternion, scalar_first=True).apply(points)
+
+
+#: A rest pose must resist a tip of at least this much to count (degrees): a block
+#: balanced on a point or an edge is not at rest on its own.
+MIN_TIP_DEG = 1.0
+
+
+def rest_poses(vertices: np.ndarray) -> tuple[RestPose, ...]:
+    """The stable ways a solid with these vertices (centroid at the origin) rests on flat ground.
+
+    Each facet of the convex hull is a candidate: the solid rests on it when
+    the centroid's projection lies inside the facet, by at least
+    :data:`MIN_TIP_DEG` of tipping. Orientations that differ only by a turn
+    about the vertical (the same facet up to the block's symmetry) count once.
+    Most stable (largest tipping angle) first.
+    """
+    from scipy.spatial import ConvexHull, QhullError
+    from scipy.spatial.transform import Rotation
+
+    v = np.asarray(vertices, dtype=float)
+    hull = ConvexHull(v)
+    scale = float(np.ptp(v, axis=0).max())
+    _, first = np.unique(np.round(hull.equations / max(scale, tol.length_floor) * 1e6), axis=0,
+                         return_index=True)
+    out: list[RestPose] = []
+    seen: set[tuple] = set()
+    for i in sorted(first):
+        n, d = hull.equations[i, :3], -hull.equations[i, 3]  # the facet is n . p = d, n outward
+        on = np.abs(v @ n - d) <= 1e-6 * scale
+        turn, _ = Rotation.align_vectors([[0.0, 0.0, -1.0]], [n])
+        flat = turn.apply(v[on])[:, :2]
+        foot = turn.apply(d * n)[:2]  # the centroid's projection onto the facet
+        if len(flat) < 3:
+            continue
+        try:
+            outline = ConvexHull(flat)
+        except QhullError:
+            continue
+        margin = float(np.min(-(outline.equations[:, :2] @ foot + outline.equations[:, 2])))
+        tip = float(np.degrees(np.arctan2(margin, d)))
+        if margin <= 0.0 or tip < MIN_TIP_DEG:
+            continue
+        # The same pose turned about the vertical has the same heights: one signature.
+        signature = tuple(np.round(np.sort(turn.apply(v)[:, 2]) / scale, 4))
+        if signature in seen:
+            continue
+        seen.add(signature)
+        turned = turn.apply(v[hull.vertices])
+        out.append(RestPose(turn.as_quat(scalar_first=True), tip, margin, float(d), int(on.sum()),
+                            _vertical_symmetry(turned, scale)))
+    out.sort(key=lambda r: -r.tip_deg)
+    return tuple(out)
+
+
+#: Orders of symmetry about the vertical that :func:`rest_poses` looks for, highest first.
+SYMMETRY_ORDERS = (6, 4, 3, 2)
+
+
+def _vertical_symmetry(points: np.ndarray, scale: float) -> int:
+    """The highest order k in :data:`SYMMETRY_ORDERS` whose turn about z maps ``points`` onto themselves."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(points)
+    for k in SYMMETRY_ORDERS:
+        c, s = np.cos(2 * np.pi / k), np.sin(2 * np.pi / k)
+        turned = points @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+        if tree.query(turned)[0].max() <= 1e-4 * scale:
+            return k
+    return 1
 
 
 # --- registry -----------------------------------------------------------------
@@ -343,7 +466,7 @@ def mesh_block(path: str, name: str | None = None) -> Block:
     centroid = np.asarray(mesh.center_mass)
     solid = solid.translate(-centroid)
     pieces = _coacd_pieces(mesh.vertices - centroid, mesh.faces, digest, path)
-    return _block_from_union(name, solid, pieces)
+    return _block_from_union(name, solid, pieces, file_frame=True)
 
 
 def _load_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -410,11 +533,12 @@ def _manifold(vertices: np.ndarray, faces: np.ndarray, name: str) -> m3.Manifold
     return solid
 
 
-def _block_from_union(name: str, solid: m3.Manifold, pieces: list[np.ndarray]) -> Block:
+def _block_from_union(name: str, solid: m3.Manifold, pieces: list[np.ndarray],
+                      file_frame: bool = False) -> Block:
     """Build a Block from its solid, moved so that its centroid is the origin."""
     out = solid.to_mesh64()
     vertices = np.asarray(out.vert_properties, dtype=float)[:, :3]
     faces = np.asarray(out.tri_verts, dtype=np.int64)
     centroid = trimesh.Trimesh(vertices, faces, process=False).center_mass
     polys = tuple(ConvexPolytope.from_points(p - centroid, name=f"{name} piece") for p in pieces)
-    return Block(name, vertices - centroid, faces, polys)
+    return Block(name, vertices - centroid, faces, polys, file_frame=file_frame)

@@ -52,8 +52,12 @@ class Foundation:
     """The top of the foundation: flat at z = 0, or a rough rubble underlayer.
 
     A rough underlayer is a height field: heights drawn uniformly from
-    ``[-amplitude, amplitude]`` on a square grid of spacing ``cell`` and
-    interpolated bilinearly, seeded so the same scene is the same ground.
+    ``[-amplitude, amplitude]`` on a square grid of spacing ``cell``, seeded so
+    the same scene is the same ground. Between the nodes it is the surface
+    MuJoCo's height field collides with: each cell is two flat triangles,
+    split along the diagonal of rising x and y. So the ground a block is
+    lowered onto, the ground the physics settle has and the ground
+    ``shoha scene export`` writes are one surface.
     """
 
     kind: str = "flat"
@@ -80,7 +84,12 @@ class Foundation:
         return xs, ys, rng.uniform(-self.amplitude, self.amplitude, (len(xs), len(ys)))
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
-        """Foundation top height under ``(n, 2)`` points, bilinear, metres."""
+        """Foundation top height under ``(n, 2)`` points, metres.
+
+        Linear on the two triangles of each cell: (0, 0)-(1, 0)-(1, 1) where
+        ``tx >= ty``, else (0, 0)-(0, 1)-(1, 1), in the cell's own coordinates:
+        MuJoCo's split (probed by ray casts onto a one-cell height field).
+        """
         xy = np.atleast_2d(xy)
         if self.kind != "rough":
             return np.zeros(len(xy))
@@ -89,10 +98,9 @@ class Foundation:
         fy = np.clip((xy[:, 1] - ys[0]) / self.cell, 0, len(ys) - 1 - tol.grid_edge)
         i, j = fx.astype(int), fy.astype(int)
         tx, ty = fx - i, fy - j
-        return (
-            h[i, j] * (1 - tx) * (1 - ty) + h[i + 1, j] * tx * (1 - ty)
-            + h[i, j + 1] * (1 - tx) * ty + h[i + 1, j + 1] * tx * ty
-        )
+        h00, h10, h01, h11 = h[i, j], h[i + 1, j], h[i, j + 1], h[i + 1, j + 1]
+        return np.where(tx >= ty, h00 + tx * (h10 - h00) + ty * (h11 - h10),
+                        h00 + ty * (h01 - h00) + tx * (h11 - h01))
 
 
 @dataclass(frozen=True)

@@ -44,9 +44,14 @@ from .search.anneal import Annealing
 from .search.beam import BeamSearch
 from .search.build import Build
 from .search.cpsat import BoundStats, CpSat
+from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, raised_check, stands
 from .search.problem import Clock, Phase, Problem, Strategy
+
+#: Share of the time limit, and most seconds, that tuning a new block's pattern may take.
+TUNE_SHARE = 0.25
+TUNE_MAX_SECONDS = 60.0
 
 #: How far (percentage points) a reference layout's porosity may be from the
 #: scene's target before ``shoha optimize`` says it missed (issue 4: within 1).
@@ -189,13 +194,18 @@ def optimize(
                          "shoha optimize places blocks in 3D scenes")
     start = clock()
     rng = np.random.default_rng(seed)
+    if lattice is None:
+        # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
+        lattice = lattice_for(scene.block, scene.block_type, min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS),
+                              clock)
     # Keep a share of the budget for the physics confirmation and the final checks.
     reserve = min(0.15 * time_limit, 10.0) if settle_layout else 0.0
     problem = Problem(
         scene=scene,
         required=scene.required_blocks,
         target=scene.target_porosity,
-        lattice=lattice or lattice_for(scene.block, scene.block_type),
+        lattice=lattice,
+        families=families(scene.block),
         deadline=start + time_limit - reserve,
         report=report,
         clock=clock,

@@ -97,3 +97,25 @@ def test_bad_scene_files_are_input_errors(text, message):
 def test_missing_scene_is_an_input_error():
     with pytest.raises(InputError, match="no such scene"):
         load_scene("atlantis")
+
+
+def test_rough_foundation_is_the_surface_mujoco_collides_with():
+    """Ray casts onto the settle's own MuJoCo height field land where ``height_at`` says."""
+    import mujoco
+
+    from settle.mujoco_backend import MujocoBackend
+
+    rough = '[foundation]\nkind = "rough"\namplitude_m = 0.15\ncell_m = 0.5\nseed = 3\n'
+    scene = parse_scene(MINI_TOML + rough, "rough.toml", None)
+    model = MujocoBackend().build(scene, [])
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([-5.0, 1.0], [5.0, 11.0], (200, 2))
+    hit = []
+    for x, y in xy:
+        geom = np.zeros(1, np.int32)
+        hit.append(5.0 - mujoco.mj_ray(model, data, np.array([x, y, 5.0]), np.array([0.0, 0.0, -1.0]),
+                                       None, 1, -1, geom))
+    np.testing.assert_allclose(hit, scene.foundation.height_at(xy), atol=1e-6)
+    assert np.ptp(hit) > 0.1  # the ground is rough: the test compares something

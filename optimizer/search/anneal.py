@@ -21,7 +21,7 @@ Metropolis rule at temperature T. The energy (``optimizer.objective``) is
 updated per move: porosity through the exact tracker (one block's clipped
 volume), slice spread through centroid bins, support from the block's own
 support list. A move that would put a block on other blocks is also settled
-locally (``optimizer.physics.raised_check``) before it is kept.
+locally (``optimizer.search.physics.raised_check``) before it is kept.
 
 Temperature schedule: T0 is calibrated so that the average uphill move of a
 trial sample is accepted with probability 1/2; T falls geometrically to
@@ -42,7 +42,7 @@ from geometry.porosity import exact_filled_volume
 from geometry.pose import axis_angle_quat, quat_multiply
 
 from .build import GROUND, Build, Candidate, fill_window
-from .hangings import FAMILIES, free, hanging
+from .hangings import free, hanging_of
 from .objective import Energy
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
@@ -103,13 +103,13 @@ class Annealing(Strategy):
     jitter_yaw : float, radians
     accept : callable, optional
         ``accept(problem, build, candidate) -> bool``, an extra test for
-        each kept move (``optimizer.physics.raised_check``).
+        each kept move (``optimizer.search.physics.raised_check``).
     """
 
     name = "anneal"
 
     def __init__(self, iterations: int = 600, jitter_xy: float = 0.15, jitter_yaw: float = math.radians(10),
-                 accept: Callable[[Problem, Build, Candidate], bool] | None = None):
+                 accept: Callable[[Problem, Build, Candidate], Candidate | None] | None = None):
         self.iterations = iterations
         self.jitter_xy = jitter_xy
         self.jitter_yaw = jitter_yaw
@@ -149,15 +149,16 @@ class Annealing(Strategy):
         if self._sites and rng.random() < 0.5:
             fam, yaw, x, y = self._sites[int(rng.integers(len(self._sites)))]
             return (float(x + rng.normal(0, self.jitter_xy)), float(y + rng.normal(0, self.jitter_xy)),
-                    hanging(fam, float(yaw + rng.normal(0, self.jitter_yaw))))
+                    hanging_of(problem.scene.block, fam, float(yaw + rng.normal(0, self.jitter_yaw))))
         window = fill_window(problem.scene)
         x, y = rng.uniform(window[0][0], window[0][1]), rng.uniform(window[1][0], window[1][1])
         return float(x), float(y), self._orientation(problem, rng)
 
     def _orientation(self, problem: Problem, rng: np.random.Generator) -> np.ndarray:
-        families = [f for f in problem.families if f in FAMILIES or f == "free"]
-        fam = families[int(rng.integers(len(families)))]
-        return free(rng) if fam == "free" else hanging(fam, float(rng.uniform(0, 2 * np.pi)))
+        fam = problem.families[int(rng.integers(len(problem.families)))]
+        if fam == "free":
+            return free(rng)
+        return hanging_of(problem.scene.block, fam, float(rng.uniform(0, 2 * np.pi)))
 
     def _delta(self, problem: Problem, build: Build, energy: Energy, key: int | None, c: Candidate,
                weak: int) -> tuple[float, int]:
@@ -177,6 +178,23 @@ class Annealing(Strategy):
         if key is not None:
             energy.add(build.poses[key].position)
         return after - before, new_weak
+
+    def _stands(self, problem: Problem, build: Build, key: int | None, c: Candidate) -> bool:
+        """Whether the moved or inserted block stays where it was lowered when let go.
+
+        The moved block's old pose is taken out of the collision world while
+        it is let go, so that it does not hold up its own new pose. A move
+        whose block would slide elsewhere is refused: the energy change was
+        worked out for where it was lowered.
+        """
+        assert self.accept is not None
+        if key is not None:
+            build.collide.remove(key)
+        try:
+            return self.accept(problem, build, c) is c
+        finally:
+            if key is not None:
+                build.collide.add(key, build.block, build.poses[key])
 
     def _apply(self, build: Build, energy: Energy, key: int | None, c: Candidate) -> None:
         if key is not None:
@@ -222,7 +240,7 @@ class Annealing(Strategy):
             if d > 0 and rng.random() >= math.exp(-d / temp):
                 rejected += 1
                 continue
-            if self.accept is not None and not self.accept(problem, build, c):
+            if self.accept is not None and not self._stands(problem, build, key, c):
                 rejected += 1
                 continue
             self._apply(build, energy, key, c)

@@ -35,13 +35,15 @@ import numpy as np
 
 from .build import GROUND, Build, Candidate, fill_window
 from .drop import Shape
-from .hangings import free, hanging
+from .hangings import free, hanging_of
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 from .sites import pattern_sites, rank_origins
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
+#: Candidates a beam step may let go (a physics run each), per partial layout it keeps.
+ACCEPT_CHECKS = 3
 #: Beam budget (s) from which origins are ranked in full: ``shoha optimize``'s
 #: default 120 s limit gives the beam about 80 s.
 RANK_SECONDS = 60.0
@@ -73,6 +75,10 @@ class _Beam:
     used: frozenset[int]
     done: bool = False
     idle: int = 0  # consecutive steps with no candidate
+    tries: tuple[tuple[int, int], ...] = ()  # (site, times its candidate did not come to rest)
+
+    def tried(self, site: int) -> int:
+        return dict(self.tries).get(site, 0)
 
 
 class BeamSearch(Strategy):
@@ -113,9 +119,10 @@ class BeamSearch(Strategy):
     patience : int
         Fruitless rounds of fill drops before a partial layout is finished.
     accept : callable, optional
-        ``accept(problem, build, candidate) -> bool``, an extra test every
-        candidate must pass (``optimizer.physics.raised_check``: a local settle
-        of blocks that rest on other blocks).
+        ``accept(problem, build, candidate) -> Candidate | None``: the
+        candidate as it comes to rest, or None if it does not
+        (``optimizer.search.physics.raised_check``: a block let go among its
+        fixed neighbours, where it rests on blocks or on rough ground).
     origin : (float, float), optional
         Pattern origin; by default several are ranked by a quick pass of the
         pattern's sites alone, and the search restarts from the best ones.
@@ -135,7 +142,7 @@ class BeamSearch(Strategy):
         Fraction of the time left that the beam may use.
     judge : callable, optional
         ``judge(problem, build) -> bool``: whether a finished build stands
-        (``optimizer.physics.stands``); restarts that stand rank first.
+        (``optimizer.search.physics.stands``); restarts that stand rank first.
     """
 
     name = "beam"
@@ -143,7 +150,7 @@ class BeamSearch(Strategy):
     def __init__(self, width: int = 4, lookahead: int = 3, jitter: int = 2, fill: int = 4,
                  jitter_xy: float = 0.12, jitter_yaw: float = math.radians(6.0), origins: int = 10,
                  scans: int = 3, scan_origins: int = 16, patience: int = 4,
-                 accept: Callable[[Problem, Build, Candidate], bool] | None = None,
+                 accept: Callable[[Problem, Build, Candidate], Candidate | None] | None = None,
                  origin: tuple[float, float] | None = None, restarts: int = 4, share: float = 0.75,
                  judge: Callable[[Problem, Build], bool] | None = None):
         self.width = width
@@ -165,10 +172,8 @@ class BeamSearch(Strategy):
     # --- candidates ------------------------------------------------------------
 
     def _lower(self, problem: Problem, build: Build, shape: Shape, x: float, y: float) -> Candidate | None:
-        c = build.lower(shape, x, y)
-        if c is not None and self.accept is not None and not self.accept(problem, build, c):
-            return None
-        return c
+        # Whether it comes to rest is asked later, of the candidates the beam keeps (_search).
+        return build.lower(shape, x, y)
 
     def _gain(self, problem: Problem, c: Candidate) -> float:
         h = problem.scene.block.height
@@ -185,7 +190,9 @@ class BeamSearch(Strategy):
         pending = [i for i in range(len(sites)) if i not in beam.used][: self.lookahead]
         for i in pending:
             fam, yaw, x, y = sites[i]
-            c = self._lower(problem, beam.build, shapes.get(hanging(fam, yaw)), x, y)
+            # A site is offered as drawn first; once its candidate did not come to rest, jittered.
+            c = (self._lower(problem, beam.build, shapes.hung(fam, yaw), x, y)
+                 if not beam.tried(i) else None)
             if c is not None:
                 out.append((self._gain(problem, c), c, i))
                 continue
@@ -195,7 +202,7 @@ class BeamSearch(Strategy):
             for _ in range(self.jitter):
                 vx, vy = x + rng.normal(0, self.jitter_xy), y + rng.normal(0, self.jitter_xy)
                 vyaw = yaw + rng.normal(0, self.jitter_yaw)
-                c = self._lower(problem, beam.build, shapes.get(hanging(fam, vyaw)), vx, vy)
+                c = self._lower(problem, beam.build, shapes.hung(fam, vyaw), vx, vy)
                 if c is not None:
                     out.append((self._gain(problem, c), c, i))
                     fitted = True
@@ -208,7 +215,8 @@ class BeamSearch(Strategy):
         xr, yr = fill_window(problem.scene)
         for _ in range(4 * self.fill):
             fam = problem.families[int(rng.integers(len(problem.families)))]
-            q = free(rng) if fam == "free" else hanging(fam, float(rng.uniform(0, 2 * np.pi)))
+            yaw = float(rng.uniform(0, 2 * np.pi))
+            q = free(rng) if fam == "free" else hanging_of(shapes.block, fam, yaw)
             x, y = rng.uniform(xr[0], xr[1]), rng.uniform(yr[0], yr[1])
             c = self._lower(problem, beam.build, shapes.get(q), float(x), float(y))
             if c is not None:
@@ -283,12 +291,16 @@ class BeamSearch(Strategy):
                     continue
                 for gain, c, site in props:
                     expanded.append((beam.score + gain, bi, beam, c, site))
-            # Keep the best distinct expansions (ties broken by order: deterministic).
+            # Keep the best distinct expansions (ties broken by order: deterministic). Whether a
+            # candidate comes to rest costs a physics run, so it is asked only of those the beam
+            # would keep, best first; one that does not is counted against its site.
             expanded.sort(key=lambda e: (-e[0], e[1]))
             nxt: list[_Beam] = []
             seen: set[tuple] = set()
-            for score, _, beam, c, site in expanded:
-                if len(nxt) >= self.width:
+            refused: dict[int, dict[int, int]] = {}
+            checks = 0
+            for score, bi, beam, c, site in expanded:
+                if len(nxt) >= self.width or checks >= ACCEPT_CHECKS * self.width:
                     break
                 if c is None:
                     key = ("keep", id(beam.build), len(beam.used), beam.idle)
@@ -301,12 +313,41 @@ class BeamSearch(Strategy):
                 if key in seen:
                     continue
                 seen.add(key)
+                if self.accept is not None:
+                    checks += 1
+                    rested = self.accept(problem, beam.build, c)
+                    if rested is None:
+                        if site is not None:
+                            counts = refused.setdefault(bi, {})
+                            counts[site] = counts.get(site, 0) + 1
+                        continue
+                    c = rested
                 b = beam.build.copy()
                 b.place(c)
                 used = beam.used | ({site} if site is not None else set())
-                nxt.append(_Beam(b, score, used, len(b) >= problem.required))
+                nxt.append(_Beam(b, score, used, len(b) >= problem.required, 0,
+                                 _count(beam, refused.get(bi, {}), 1 + self.jitter)[1]))
+            # A beam whose candidates did not come to rest goes on, with those sites counted (and
+            # retired once offered as drawn and jittered), so that it moves on along the pattern.
+            for bi, counts in sorted(refused.items()):
+                if len(nxt) >= self.width:
+                    break
+                beam = beams[bi]
+                dead, tries = _count(beam, counts, 1 + self.jitter)
+                nxt.append(_Beam(beam.build, beam.score, beam.used | dead, beam.done, beam.idle, tries))
+            if not nxt:
+                break  # nothing was kept and nothing was refused: no beam can go on
             beams = nxt
             lead = max(beams, key=lambda b: (len(b.build), b.score))
             problem.tell(self.name, lead.build, f"{len(lead.build)} placed")
         final = max(beams, key=lambda b: (len(b.build), b.build.inside_volume))
         return final.build, tried
+
+
+def _count(beam: _Beam, refused: dict[int, int], limit: int) -> tuple[frozenset[int], tuple]:
+    """Add ``refused`` to a beam's tries: the sites now tried ``limit`` times, and the new tries."""
+    tries = dict(beam.tries)
+    for site, n in refused.items():
+        tries[site] = tries.get(site, 0) + n
+    dead = frozenset(s for s, n in tries.items() if n >= limit)
+    return dead, tuple(sorted((s, n) for s, n in tries.items() if s not in dead))

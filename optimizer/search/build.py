@@ -79,11 +79,11 @@ class Build:
         self.supports: dict[int, tuple[int, ...]] = {}
         self.carried: dict[int, set[int]] = {}
         self.next_key = 0
-        self._zone = scene.tolerance.polytope
+        self.zone = scene.tolerance.polytope
         self._design = scene.design.polytope
         # The zone's faces a rising block can only cross further: slopes, crest, ends.
-        up = self._zone.normals[:, 2] >= 0.0
-        self._ceiling = (self._zone.normals[up], self._zone.offsets[up])
+        up = self.zone.normals[:, 2] >= 0.0
+        self._ceiling = (self.zone.normals[up], self.zone.offsets[up])
 
     def __len__(self) -> int:
         return len(self.order)
@@ -114,14 +114,15 @@ class Build:
         the drops of a pattern pass on ``mini`` and ``tetrapod``).
         """
         normals, offsets = self._ceiling
-        low = Pose([x, y, self.drops.ground_height(shape, x, y)], shape.quaternion).apply(self.block.vertices)
+        ground = self.drops.ground_height(shape, x, y)
+        low = Pose([x, y, ground], shape.quaternion).apply(self.block.vertices)
         if not np.all(low @ normals.T <= offsets + tol.distance):
             return None
-        z, support, on_ground = self.drops.drop(shape, x, y, exclude)
+        z, support, on_ground = self.drops.drop(shape, x, y, exclude, ground)
         pose = Pose([x, y, z], shape.quaternion)
         world = pose.apply(self.block.vertices)
         # The tolerance zone is convex: the block is inside iff its vertices are.
-        if not self._zone.contains(world).all():
+        if not self.zone.contains(world).all():
             return None
         if self.collide.query(self.block, pose, exclude=exclude, threshold=-1.0, first=True):
             return None  # pragma: no cover - the exact drop leaves a gap; FCL is the referee

@@ -42,7 +42,6 @@ from geometry.pose import Pose
 
 from .build import GROUND, Build
 from .drop import DropWorld, Shape
-from .hangings import hanging
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 from .sites import rank_origins
@@ -145,7 +144,7 @@ class CpSat(Strategy):
                     (x + rng.normal(0, self.jitter_xy), y + rng.normal(0, self.jitter_xy),
                      yaw + rng.normal(0, self.jitter_yaw)) for _ in range(self.jitter)]
                 for vx, vy, vyaw in variants:
-                    shape = shapes.get(hanging(fam, vyaw))
+                    shape = shapes.hung(fam, vyaw)
                     z = ground.ground_height(shape, vx, vy) + tol.drop_resolution
                     c = self._candidate(problem, shape, Pose([vx, vy, z], shape.quaternion))
                     if c is not None:

@@ -18,6 +18,7 @@ nodes and at the block's lower vertices.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +57,7 @@ class Shape:
     radius_xy: float
     lower: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
     upper: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
+    vertices_xy: np.ndarray = field(repr=False, default=None)  # (v, 2): every piece's vertices, x and y
 
     @classmethod
     def of(cls, block: Block, quaternion: np.ndarray) -> Shape:
@@ -65,20 +67,63 @@ class Shape:
         highs = np.array([p.vertices[:, 2].max() for p in pieces])
         boxes = np.array([[p.vertices[:, :2].min(axis=0), p.vertices[:, :2].max(axis=0)] for p in pieces])
         radius = max(float(np.linalg.norm(p.vertices[:, :2], axis=1).max()) for p in pieces)
-        lower = [_side(p, -1.0) for p in pieces]
-        upper = [_side(p, 1.0) for p in pieces]
-        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, lower, upper)
+        sides = [_faces_of(p) for p in block.pieces]
+        lower = [_side(s, p, r[2], -1.0) for s, p in zip(sides, pieces, strict=True)]
+        upper = [_side(s, p, r[2], 1.0) for s, p in zip(sides, pieces, strict=True)]
+        xy = np.concatenate([p.vertices[:, :2] for p in pieces])
+        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, lower, upper, xy)
 
 
-def _side(piece: ConvexPolytope, sign: float) -> tuple[np.ndarray, np.ndarray]:
-    """Edges ``(e, 2, 3)`` and vertices ``(v, 3)`` of the faces whose normals point up (+1) or down (-1)."""
-    tri = piece.vertices[piece.faces]
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    facing = sign * n[:, 2] > tol.orientation * np.linalg.norm(n, axis=1)
-    faces = piece.faces[facing]
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    e = np.unique(np.sort(e, axis=1), axis=0)
-    return piece.vertices[e], piece.vertices[np.unique(faces)]
+@dataclass(frozen=True, eq=False)
+class _Faces:
+    """A piece's faces, once per piece, block frame: each turn of it only selects among them.
+
+    Attributes
+    ----------
+    normals : (f, 3) float
+        Each triangle's (unnormalised) normal; ``lengths`` its length.
+    edges : (e, 2) int
+        The hull's unique edges, sorted; ``edge_faces`` (e, 2) the two triangles at each.
+    incidence : (v, f) bool
+        Which triangles each vertex belongs to.
+    """
+
+    normals: np.ndarray
+    lengths: np.ndarray
+    edges: np.ndarray
+    edge_faces: np.ndarray
+    incidence: np.ndarray
+
+
+_FACES: weakref.WeakKeyDictionary[ConvexPolytope, _Faces] = weakref.WeakKeyDictionary()
+
+
+def _faces_of(piece: ConvexPolytope) -> _Faces:
+    faces = _FACES.get(piece)
+    if faces is None:
+        tri = piece.vertices[piece.faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        e = np.concatenate([piece.faces[:, [0, 1]], piece.faces[:, [1, 2]], piece.faces[:, [2, 0]]])
+        owner = np.tile(np.arange(len(piece.faces)), 3)
+        edges, inverse = np.unique(np.sort(e, axis=1), axis=0, return_inverse=True)
+        # A closed hull has every edge in exactly two triangles: grouped by edge, they pair up.
+        edge_faces = owner[np.argsort(inverse.ravel(), kind="stable")].reshape(-1, 2)
+        incidence = np.zeros((len(piece.vertices), len(piece.faces)), dtype=bool)
+        incidence[piece.faces, np.arange(len(piece.faces))[:, None]] = True
+        faces = _FACES[piece] = _Faces(n, np.linalg.norm(n, axis=1), edges, edge_faces, incidence)
+    return faces
+
+
+def _side(faces: _Faces, turned: ConvexPolytope, up: np.ndarray, sign: float
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Edges ``(e, 2, 3)`` and vertices ``(v, 3)`` of the faces whose normals point up (+1) or down (-1).
+
+    ``turned`` is the piece turned (vertices in the same order as the block
+    frame's), ``up`` the world z axis in the block frame (the rotation's last row).
+    """
+    facing = sign * (faces.normals @ up) > tol.orientation * faces.lengths
+    edges = faces.edges[facing[faces.edge_faces].any(axis=1)]
+    return turned.vertices[edges], turned.vertices[faces.incidence[:, facing].any(axis=1)]
 
 
 def _segment_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -203,24 +248,30 @@ class DropWorld:
         if self.foundation.kind != "rough":
             return float(-shape.lows.min())
         f = self.foundation
+        xs, ys, _ = f.grid
+        # The field's nodes under the whole block, once: index ranges, not a scan of the grid.
+        offset = np.array([x, y])
+        lo_xy, hi_xy = shape.xy_boxes[:, 0].min(axis=0) + offset, shape.xy_boxes[:, 1].max(axis=0) + offset
+        i0, i1 = np.searchsorted(xs, lo_xy[0]), np.searchsorted(xs, hi_xy[0], side="right")
+        j0, j1 = np.searchsorted(ys, lo_xy[1]), np.searchsorted(ys, hi_xy[1], side="right")
+        gx, gy = np.meshgrid(xs[i0:i1], ys[j0:j1], indexing="ij")
+        # The height field at every piece's vertices and at the nodes under the block, in one call;
+        # each piece then meets it where its own column is (a point outside its footprint misses it).
+        local = np.concatenate([shape.vertices_xy, np.column_stack([gx.ravel(), gy.ravel()]) - offset])
+        ground = f.height_at(local + offset)
         best = -np.inf
         for p in shape.pieces:
-            lo_xy = p.vertices[:, :2].min(axis=0) + (x, y)
-            hi_xy = p.vertices[:, :2].max(axis=0) + (x, y)
-            xs, ys, _ = f.grid
-            nodes = np.array([(u, v) for u in xs[(xs >= lo_xy[0]) & (xs <= hi_xy[0])]
-                              for v in ys[(ys >= lo_xy[1]) & (ys <= hi_xy[1])]]).reshape(-1, 2)
-            # Height field at the piece's vertices and at the field's nodes under it.
-            pts = np.concatenate([p.vertices[:, :2] + (x, y), nodes])
-            lo, hi = column_intervals(p.normals, p.offsets, pts - (x, y))
+            lo, hi = column_intervals(p.normals, p.offsets, local)
             ok = hi >= lo - tol.distance
             if ok.any():
-                best = max(best, float(np.max(f.height_at(pts[ok]) - lo[ok])))
+                best = max(best, float(np.max(ground[ok] - lo[ok])))
         return best
 
-    def drop(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset()
-             ) -> tuple[float, list[int], bool]:
+    def drop(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset(),
+             ground: float | None = None) -> tuple[float, list[int], bool]:
         """Lower ``shape`` at (x, y) from above until it first touches.
+
+        ``ground`` is :meth:`ground_height` at (x, y), where the caller has it already.
 
         Returns
         -------
@@ -233,7 +284,8 @@ class DropWorld:
             Whether it touches the foundation.
         """
         offset = np.array([x, y])
-        ground = self.ground_height(shape, x, y)
+        if ground is None:
+            ground = self.ground_height(shape, x, y)
         best = ground
         pairs = []
         for k in self.under(x, y, shape.radius_xy, exclude):

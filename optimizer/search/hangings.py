@@ -19,8 +19,14 @@ axis vertical, which are the three ways the slings can be rigged:
 Each family has a free yaw about the vertical, the crane's slewing of the
 hook. The ``free`` family, an option, is any orientation at all.
 
-For blocks that are not tetrapod-like (``box:``, ``mesh:``) the same rotations
-are applied to the block frame: as given, upside down, and on its side.
+Those three are the built-in tetrapod-like blocks' (``shake-4t``,
+``tetrapod``), whose block frame puts leg 0 along +z. Any other block, a
+``box:`` or a user's ``mesh:`` in whatever frame its file comes, hangs the
+ways its own shape rests: its rest poses (``geometry.blocks.rest_poses``,
+faces of its convex hull it stands on without tipping), named ``rest-1``
+(the most stable), ``rest-2`` and so on. For a tetrapod-like mesh these are
+the same three hangings, found from the shape (crown: three legs down;
+level: one leg down; horizontal: two legs down), whatever its frame.
 """
 
 from __future__ import annotations
@@ -28,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from geometry.blocks import LEG_DIRECTIONS
+from geometry.blocks import LEG_DIRECTIONS, Block
 from geometry.pose import axis_angle_quat, quat_multiply
 from geometry.samples import random_quaternion
 
@@ -57,9 +63,53 @@ BASE = {
 }
 
 
+#: Most rest poses a block's hangings take (the least stable are of little use).
+MAX_REST_HANGINGS = 3
+
+
 def hanging(family: str, yaw: float) -> np.ndarray:
-    """Orientation ``[w, x, y, z]`` of a block hung in ``family``, turned by ``yaw`` radians."""
+    """Orientation ``[w, x, y, z]`` of a built-in tetrapod-like block in ``family``, turned by ``yaw``."""
     return quat_multiply(axis_angle_quat([0.0, 0.0, 1.0], yaw), BASE[family])
+
+
+def named(block: Block) -> bool:
+    """Whether the block's frame is a built-in tetrapod-like one, with leg 0 along +z."""
+    return block.name == "shake-4t" or block.name.startswith("tetrapod")
+
+
+def families(block: Block) -> tuple[str, ...]:
+    """The hangings a block can be set down in: crown, level and horizontal, or its rest poses."""
+    if named(block):
+        return FAMILIES
+    return tuple(f"rest-{i + 1}" for i in range(min(MAX_REST_HANGINGS, len(block.rest_poses))))
+
+
+def symmetry(block: Block, family: str) -> int:
+    """The order of a hanging's symmetry about the vertical: three for the tetrapod-likes' own."""
+    if named(block) and family in BASE:
+        return 3 if family in ("crown", "level") else 2
+    return block.rest_poses[_rest_index(block, family)].symmetry
+
+
+def _rest_index(block: Block, family: str) -> int:
+    if family.startswith("rest-") and family[5:].isdigit() and 0 < int(family[5:]) <= len(block.rest_poses):
+        return int(family[5:]) - 1
+    raise ValueError(f"{block.name}: no hanging {family!r} (it has {', '.join(families(block))})")
+
+
+def hanging_of(block: Block, family: str, yaw: float) -> np.ndarray:
+    """Orientation ``[w, x, y, z]`` of ``block`` in ``family`` (one of :func:`families`), turned by ``yaw``.
+
+    Raises
+    ------
+    ValueError
+        For a family the block has not.
+    """
+    if named(block) and family in BASE:
+        base = BASE[family]
+    else:
+        base = block.rest_poses[_rest_index(block, family)].quaternion
+    return quat_multiply(axis_angle_quat([0.0, 0.0, 1.0], yaw), base)
 
 
 def tilted(q: np.ndarray, tilt: float, azimuth: float) -> np.ndarray:

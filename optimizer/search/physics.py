@@ -1,16 +1,19 @@
 """Physics in the loop, modelling no more than is needed.
 
-* During the main search, a block that rests on the ground needs no physics:
-  it was lowered until it touched, and the lattice sets it on its legs. A
-  block that rests on other blocks can tip or slide off them, so each such
-  candidate passes a cheap local check (:func:`raised_check`): it is settled
-  for one second on its own, its neighbours held fixed as static bodies
-  (``movable={new}``). This costs 10-30 ms a candidate, a few seconds per
-  search for ``mini``, and keeps blocks that would fall out of the layout.
+* During the main search, a block lowered onto a flat foundation needs no
+  physics: it was lowered until it touched, on one of its rest poses. A block
+  that comes down on other blocks, or on a rough underlayer, first touches
+  at one point and may tip, slide or rock before it rests, as a block does
+  when the crane lets it go. So each such candidate is let go
+  (:func:`settle_in`): settled on its own, its neighbours held fixed as static
+  bodies (``movable={new}``). If it stays where it was lowered, it is kept
+  there; if it moves, it is kept where it comes to rest, provided it rests
+  there whole, inside the tolerance zone and pressing into no block. This
+  costs 5-30 ms a candidate.
 * The final layout is settled (``settle.settle``, MuJoCo for 3D scenes). If
   some blocks move or turn too far, they are taken out together with every
   block resting on them, and placed again by the beam search.
-* While repairing, every candidate passes the local check, ground or not.
+* While repairing, every candidate is let go, on the ground or not.
 """
 
 from __future__ import annotations
@@ -19,36 +22,73 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from geometry.clip import volume_inside
+from geometry.constants import tol
 from settle import Thresholds, settle
 
 from .beam import BeamSearch
 from .build import GROUND, Build, Candidate
+from .drop import Shape
 from .problem import Phase, Problem
 
-#: Simulated seconds of the local check of one candidate.
-LOCAL_SECONDS = 1.0
-#: The local check holds the neighbours still, so it cannot see them shift
+#: Simulated seconds a candidate is let go for (it stops early once at rest).
+LOCAL_SECONDS = 2.0
+#: A candidate that moves less than this when let go stays where it was
+#: lowered. The neighbours are held still, so the check cannot see them shift
 #: under the new block; it asks for half the final verdict's movement.
 LOCAL_THRESHOLDS = Thresholds(displacement_fraction=0.025, rotation_deg=2.5)
 #: Repair rounds before the verdict is taken as it is.
 ROUNDS = 3
 
 
-def raised_check(problem: Problem, build: Build, candidate: Candidate) -> bool:
-    """The local check, for candidates that rest on other blocks only."""
-    if candidate.support == (GROUND,):
-        return True
-    return local_check(problem, build, candidate)
+def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
+    """:func:`settle_in` for candidates that rest on other blocks or on a rough underlayer.
+
+    A candidate lowered onto a flat foundation stands on one of its rest
+    poses, and is kept as it is.
+    """
+    if candidate.support == (GROUND,) and problem.scene.foundation.kind == "flat":
+        return candidate
+    return settle_in(problem, build, candidate)
 
 
-def local_check(problem: Problem, build: Build, candidate: Candidate) -> bool:
-    """Whether a candidate stays put when settled alone against fixed neighbours."""
+def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
+    """The candidate where it comes to rest when let go among fixed neighbours, or None.
+
+    Returns the candidate itself if it stays within :data:`LOCAL_THRESHOLDS`
+    of where it was lowered; otherwise the block at rest where it ends, if it
+    comes to rest within :data:`LOCAL_SECONDS`, whole inside the tolerance
+    zone, pressing no block deeper than ``tol.contact_depth``, and resting on
+    something; otherwise None.
+    """
     key = -2  # not a key any build uses
-    near = build.collide.neighbours(candidate.pose.position, 2.5 * build.block.bounding_radius)
-    placed = [(k, build.block, build.poses[k]) for k in near] + [(key, build.block, candidate.pose)]
+    block = build.block
+    near = build.collide.neighbours(candidate.pose.position, 2.5 * block.bounding_radius)
+    placed = [(k, block, build.poses[k]) for k in near] + [(key, block, candidate.pose)]
     result = settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
                     thresholds=LOCAL_THRESHOLDS)
-    return bool(result.stable)
+    if result.stable:
+        return candidate
+    if not result.at_rest:
+        return None
+    pose = result.poses[key]
+    world = pose.apply(block.vertices)
+    if not build.zone.contains(world).all():
+        return None
+    if build.collide.query(block, pose, threshold=tol.contact_depth, first=True):
+        return None
+    touching = sorted(k for k, _ in build.collide.query(block, pose, threshold=-1.0))
+    clearance = world[:, 2] - problem.scene.foundation.height_at(world[:, :2])
+    support = tuple(touching) + ((GROUND,) if clearance.min() <= tol.contact_gap else ())
+    if not support:
+        return None
+    return Candidate(Shape.of(block, pose.quaternion), pose, support,
+                     volume_inside(block, pose, problem.scene.design.polytope))
+
+
+def local_check(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
+    """:func:`settle_in` for any candidate, on the ground or not (the repair's check)."""
+    return settle_in(problem, build, candidate)
 
 
 def stands(problem: Problem, build: Build) -> bool:

@@ -45,7 +45,8 @@ class Problem:
     lattice : InterlockLattice
         The placement pattern the candidates start from.
     families : tuple of str
-        Hangings the search may use ("crown", "level", "horizontal", "free").
+        Hangings the search may use (``hangings.families`` of the block, and
+        "free"); the built-in tetrapod-like blocks' three by default.
     deadline : float
         Clock value by which a strategy must return.
     report : callable, optional

@@ -7,6 +7,7 @@ import numpy as np
 from geometry.blocks import Block
 
 from .drop import Shape
+from .hangings import hanging_of
 
 
 class ShapeCache:
@@ -20,6 +21,10 @@ class ShapeCache:
     def __init__(self, block: Block):
         self.block = block
         self._cache: dict[tuple, Shape] = {}
+
+    def hung(self, family: str, yaw: float) -> Shape:
+        """The shape of the block hung in ``family`` (``hangings.families``), turned by ``yaw`` radians."""
+        return self.get(hanging_of(self.block, family, yaw))
 
     def get(self, q: np.ndarray) -> Shape:
         """The shape of the block turned by ``q`` (scalar first), rounded to 1e-12."""

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 from .build import Build
-from .hangings import hanging
 from .problem import Problem
 from .shapes import ShapeCache
 
@@ -73,7 +72,7 @@ def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tup
     for fam, yaw, x, y in pattern_sites(problem, origin):
         if len(b) >= problem.required or problem.now() > stop:
             break
-        c = b.lower(shapes.get(hanging(fam, yaw)), x, y)
+        c = b.lower(shapes.hung(fam, yaw), x, y)
         if c is not None:
             b.place(c)
     return b

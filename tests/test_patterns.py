@@ -1,0 +1,61 @@
+"""Placement patterns: the automatic tuner, and the cache that keeps what it found."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import optimizer.search.patterns as patterns
+from geometry.blocks import get_block
+from optimizer.search.patterns import _lattice_penalty, lattice_for, staggered, tune_lattice
+
+
+def _params(lat):
+    return np.array([lat.p, lat.w, lat.q, lat.u, lat.v, lat.yaw_a, lat.yaw_b])
+
+
+@pytest.mark.parametrize("name, denser", [("box:1x1x1", False), ("tetrapod:2", True)])
+def test_the_tuner_finds_a_feasible_lattice_no_looser_than_the_staggered_bond(name, denser):
+    """Cubes pack no closer than side by side, which the bond already is; tetrapods interlock."""
+    block = get_block(name)
+    lat = tune_lattice(block, seconds=6.0)
+    # Feasible: the penalty adds 20 per metre a block stops short of the ground, so it is the area.
+    assert _lattice_penalty(_params(lat), block, (lat.family_a, lat.family_b)) == pytest.approx(
+        lat.area_per_block)
+    bond = staggered(block).area_per_block
+    assert lat.area_per_block < bond if denser else lat.area_per_block <= bond
+    assert lat.area_per_block >= 0.999 * block.height**2 if not denser else True
+
+
+def test_the_staggered_bond_is_feasible(cube, shake):
+    for block in (cube, shake):
+        lat = staggered(block)
+        assert _lattice_penalty(_params(lat), block, (lat.family_a, lat.family_b)) == pytest.approx(
+            lat.area_per_block)
+
+
+def test_a_tuned_lattice_is_cached_and_reused(tmp_path, monkeypatch):
+    monkeypatch.setenv("SHOHA_CACHE", str(tmp_path))
+    block = get_block("box:1.3x1.1x0.9")
+    first = lattice_for(block, block.name, tune_seconds=8.0)
+    assert list((tmp_path / "lattices").iterdir()), "nothing was cached"
+
+    def no_tuning(*args, **kwargs):
+        raise AssertionError("the cached lattice should have been reused")
+
+    monkeypatch.setattr(patterns, "tune_lattice", no_tuning)
+    again = lattice_for(block, block.name, tune_seconds=2.0)
+    assert again == first
+    # Another block is not served from this one's cache.
+    other = get_block("box:1.3x1.1x0.95")
+    assert lattice_for(other, other.name) == staggered(other)
+
+
+def test_a_broken_cache_file_is_tuned_again(tmp_path, monkeypatch):
+    monkeypatch.setenv("SHOHA_CACHE", str(tmp_path))
+    block = get_block("box:1.2x1.2x1.2")
+    path = patterns._cache_path(block)
+    path.parent.mkdir(parents=True)
+    path.write_text("{not json")
+    lat = lattice_for(block, block.name, tune_seconds=8.0)
+    assert lat == lattice_for(block, block.name)  # tuned, and cached over the broken file
