@@ -46,6 +46,13 @@ from .tolerance import Allowance, TrapezoidalPrism, design_prism, tolerance_pris
 
 SCENE_KINDS = ("3d", "section")
 
+#: Thickness of the foundation slab ``shoha scene export`` writes, below its lowest point, metres.
+FOUNDATION_SLAB = 1.0
+
+#: Thickness of the wall behind its face, metres. A caisson or seawall is thicker;
+#: the face is what the blocks meet, and the settle holds the whole slab fixed.
+WALL_THICKNESS = 1.0
+
 
 @dataclass(frozen=True)
 class Foundation:
@@ -82,6 +89,34 @@ class Foundation:
             return xs, ys, np.zeros((len(xs), len(ys)))
         rng = np.random.default_rng(self.seed)
         return xs, ys, rng.uniform(-self.amplitude, self.amplitude, (len(xs), len(ys)))
+
+    def slab(self, thickness: float = FOUNDATION_SLAB) -> tuple[np.ndarray, np.ndarray]:
+        """The foundation as a closed slab over :attr:`extent`: its top surface and ``thickness`` below.
+
+        Returns
+        -------
+        vertices : (n, 3) float, metres, world frame
+        faces : (m, 3) int, outward facing
+            A rough top is the grid's own triangles, split as :meth:`height_at` splits them.
+        """
+        xs, ys, h = self.grid
+        nx, ny = len(xs), len(ys)
+        gx, gy = np.meshgrid(xs, ys, indexing="ij")
+        bottom = self.lowest - thickness
+        top = np.column_stack([gx.ravel(), gy.ravel(), h.ravel()])
+        base = np.column_stack([gx.ravel(), gy.ravel(), np.full(nx * ny, bottom)])
+        index = np.arange(nx * ny).reshape(nx, ny)
+        a, b = index[:-1, :-1].ravel(), index[1:, :-1].ravel()  # (i, j), (i+1, j)
+        c, d = index[1:, 1:].ravel(), index[:-1, 1:].ravel()  # (i+1, j+1), (i, j+1)
+        # Each cell split along its rising diagonal a-c, counter-clockwise seen from above.
+        up = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+        down = up[:, ::-1] + nx * ny  # the base, seen from below
+        ring = np.concatenate([index[:, 0], index[-1, 1:], index[-2::-1, -1], index[0, -2:0:-1]])
+        nxt = np.roll(ring, -1)
+        # Sides: each boundary edge of the top joined to the same edge of the base.
+        sides = np.concatenate([np.column_stack([ring, ring + nx * ny, nxt]),
+                                np.column_stack([nxt, ring + nx * ny, nxt + nx * ny])])
+        return np.concatenate([top, base]), np.concatenate([up, down, sides])
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         """Foundation top height under ``(n, 2)`` points, metres.
@@ -176,6 +211,22 @@ class Scene:
     def design_volume(self) -> float:
         """V_B of eq. (1), m^3."""
         return self.design.volume
+
+    @property
+    def wall_box(self) -> np.ndarray | None:
+        """(2, 3) float: the wall's lower and upper corners, world frame; None without a wall.
+
+        Its face is the design's landward side, ``x = -crest_width / 2``, and it is
+        :data:`WALL_THICKNESS` thick behind it. It runs from ``FOUNDATION_SLAB``
+        below the foundation's lowest point to a block height above the
+        tolerance crest, and a block height past each end of the zone.
+        """
+        if not self.wall:
+            return None
+        zone, h = self.tolerance, self.block.height
+        x = float(self.design.wall_x)
+        return np.array([[x - WALL_THICKNESS, zone.y_start - h, self.foundation.lowest - FOUNDATION_SLAB],
+                         [x, zone.y_end + h, zone.z_top + h]])
 
     @property
     def crest(self) -> np.ndarray:

@@ -49,6 +49,18 @@ from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, raised_check, stands
 from .search.problem import Clock, Phase, Problem, Strategy
 
+#: The default time limit (s): at least this, ``SECONDS_PER_BLOCK`` a required block above it,
+#: and at most ``MAX_DEFAULT_LIMIT`` (issue 24: up to 0.5 s a block, 20 minutes at most).
+MIN_DEFAULT_LIMIT = 120.0
+SECONDS_PER_BLOCK = 0.5
+MAX_DEFAULT_LIMIT = 1200.0
+
+
+def default_time_limit(scene: Scene) -> float:
+    """``shoha optimize``'s limit when none is given: 0.5 s a required block, within [120 s, 20 min]."""
+    return min(MAX_DEFAULT_LIMIT, max(MIN_DEFAULT_LIMIT, SECONDS_PER_BLOCK * scene.required_blocks))
+
+
 #: Share of the time limit, and most seconds, that tuning a new block's pattern may take.
 TUNE_SHARE = 0.25
 TUNE_MAX_SECONDS = 60.0
@@ -154,7 +166,7 @@ def default_strategies(bound: bool = False) -> list[Strategy]:
 def optimize(
     scene: Scene,
     seed: int = 0,
-    time_limit: float = 120.0,
+    time_limit: float | None = None,
     strategies: Sequence[Strategy] | None = None,
     lattice: InterlockLattice | None = None,
     settle_layout: bool = True,
@@ -171,9 +183,10 @@ def optimize(
         All randomness comes from ``numpy.random.default_rng(seed)``; the same
         seed gives the same layout, byte for byte, as long as ``time_limit``
         does not cut the strategies' fixed work short.
-    time_limit : float, seconds
-        Wall-clock budget for the search; the best valid layout found so far
-        is returned when it runs out.
+    time_limit : float, seconds, optional
+        Wall-clock budget of the whole run, checks included: it is kept to
+        within 2 s. The best valid layout found so far is returned when it
+        runs out. By default :func:`default_time_limit`.
     strategies : sequence of Strategy, optional
         Run in order, each improving the previous one's build; by default
         :func:`default_strategies`.
@@ -193,6 +206,7 @@ def optimize(
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
                          "shoha optimize places blocks in 3D scenes")
     start = clock()
+    time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     rng = np.random.default_rng(seed)
     if lattice is None:
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.

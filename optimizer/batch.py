@@ -241,7 +241,7 @@ def score_task(save: str, reference: str, source: str = "auto", block: str = "sh
     return row
 
 
-def optimize_task(scene: str, seed: int, time_limit: float, layouts: str) -> dict[str, Any]:
+def optimize_task(scene: str, seed: int, time_limit: float | None, layouts: str) -> dict[str, Any]:
     """One optimizer run; writes its layout into the folder ``layouts``; a row of the batch output."""
     from geometry.layout import write_layout
     from geometry.scene import load_scene

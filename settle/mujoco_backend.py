@@ -8,7 +8,8 @@ world. The foundation is a static box whose top is z = 0, or a height field
 for a rough underlayer, never an infinite plane: MuJoCo's plane-mesh collider
 keeps at most 3 contact points, so a flat face resting on a plane ratchets
 and creeps (mujoco#3524); the box goes through the general convex collider,
-which gives a full contact patch.
+which gives a full contact patch. A wall-backed section's wall is another
+static box.
 
 Quaternions are scalar first ``[w, x, y, z]`` in MuJoCo as in shoha, so poses
 go in and out without conversion.
@@ -181,6 +182,7 @@ class MujocoBackend(SettleBackend):
             if id(body.block) not in meshes:
                 meshes[id(body.block)] = self._add_meshes(spec, body.block, len(meshes))
         self._add_foundation(spec, scene, bodies)
+        self._add_wall(spec, scene)
         # Free bodies first, so that their joints' qpos and qvel are
         # contiguous, in the order of free_order().
         free = [bodies[i] for i in free_order(bodies)]
@@ -245,6 +247,18 @@ class MujocoBackend(SettleBackend):
         g.size = [(x1 - x0) / 2 + m, (y1 - y0) / 2 + m, FOUNDATION_THICKNESS / 2]
         top = -f.amplitude if f.kind == "rough" else 0.0
         g.pos = [(x0 + x1) / 2, (y0 + y1) / 2, top - FOUNDATION_THICKNESS / 2]
+        self._contact(g)
+
+    def _add_wall(self, spec: mujoco.MjSpec, scene: Scene) -> None:
+        """A wall-backed section's wall (``Scene.wall_box``): a static box, as fixed as the foundation."""
+        box = scene.wall_box
+        if box is None:
+            return
+        g = spec.worldbody.add_geom()
+        g.name = "wall"
+        g.type = mujoco.mjtGeom.mjGEOM_BOX
+        g.size = ((box[1] - box[0]) / 2).tolist()
+        g.pos = ((box[0] + box[1]) / 2).tolist()
         self._contact(g)
 
     def _add_height_field(self, spec: mujoco.MjSpec, scene: Scene) -> None:

@@ -7,7 +7,7 @@ and its moment of inertia about local y, and one convex polygon per piece,
 the piece's x-z outline. A block held fixed is a static body. The foundation
 is a static polygon whose top is z = 0, or, over a rough underlayer, a row of
 static quadrilaterals following the height field's profile along the middle
-of the slice.
+of the slice. A wall-backed section's wall is one more static polygon.
 
 Choices, each with its reason:
 
@@ -153,6 +153,10 @@ class PymunkBackend(SettleBackend):
             quads.append([(xs[-1], bottom), (x1, bottom), (x1, zs[-1]), (xs[-1], zs[-1])])
         else:
             quads = [[(x0, -FOUNDATION_THICKNESS), (x1, -FOUNDATION_THICKNESS), (x1, 0.0), (x0, 0.0)]]
+        box = scene.wall_box
+        if box is not None:  # a wall-backed section's wall: its x-z outline, as fixed as the ground
+            quads.append([(box[0, 0], box[0, 2]), (box[1, 0], box[0, 2]), (box[1, 0], box[1, 2]),
+                          (box[0, 0], box[1, 2])])
         for quad in quads:
             s = pymunk.Poly(ground, [(float(a), float(b)) for a, b in quad])
             s.friction = friction

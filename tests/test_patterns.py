@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -54,8 +60,26 @@ def test_a_tuned_lattice_is_cached_and_reused(tmp_path, monkeypatch):
 def test_a_broken_cache_file_is_tuned_again(tmp_path, monkeypatch):
     monkeypatch.setenv("SHOHA_CACHE", str(tmp_path))
     block = get_block("box:1.2x1.2x1.2")
-    path = patterns._cache_path(block)
+    path = patterns.cache_path(block)
     path.parent.mkdir(parents=True)
     path.write_text("{not json")
     lat = lattice_for(block, block.name, tune_seconds=8.0)
     assert lat == lattice_for(block, block.name)  # tuned, and cached over the broken file
+
+
+def test_cli_block_tune_tunes_caches_and_reports(tmp_path):
+    exe = str(Path(sys.executable).parent / "shoha")
+
+    def run(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([exe, *args], capture_output=True, text=True, timeout=120,
+                              env={**os.environ, "SHOHA_CACHE": str(tmp_path)})
+
+    first = run("block", "tune", "box:1.1x0.9x0.7", "--seconds", "6", "--json")
+    assert first.returncode == 0, first.stderr
+    d = json.loads(first.stdout)
+    assert d["source"] == "tuned" and Path(d["path"]).is_file() and d["area_per_block_m2"] > 0
+    again = json.loads(run("block", "tune", "box:1.1x0.9x0.7", "--json").stdout)
+    assert again["source"] == "cached" and again["area_per_block_m2"] == d["area_per_block_m2"]
+    assert json.loads(run("block", "tune", "shake-4t", "--json").stdout)["source"] == "built in"
+    bad = run("block", "tune", "box:1x1", "--json")
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1

@@ -62,3 +62,64 @@ def test_a_block_through_the_wall_is_out_of_tolerance(walled, shake):
 def test_wall_must_be_a_boolean():
     with pytest.raises(InputError, match="wall must be true or false"):
         parse_scene(WALL_TOML.format(wall='"yes"'), "bad.toml", None)
+
+
+def test_the_settle_holds_the_wall(walled, open_):
+    """A slab leaning on the wall face stays; the same slab with no wall behind it falls."""
+    from geometry.blocks import get_block
+    from geometry.pose import Pose, axis_angle_quat
+    from settle import settle
+
+    slab = get_block("box:0.3x2x2")
+    # Tilted 20 degrees towards the wall, its upper edge against the face at x = -1.5.
+    tilt = np.radians(20.0)
+    q = axis_angle_quat([0.0, 1.0, 0.0], -tilt)
+    pose = Pose([0.0, 7.0, 0.0], q)
+    w = pose.apply(slab.vertices)
+    pose = Pose([-1.5 - w[:, 0].min() + 0.001, 7.0, -w[:, 2].min() + 0.001], q)
+    held = settle(walled, [(0, slab, pose)], seconds=2.0)
+    fell = settle(open_, [(0, slab, pose)], seconds=2.0)
+    assert held.stable, held.summary()
+    assert not fell.stable and fell.max_rotation_deg > 10.0
+
+
+def test_scene_export_writes_the_foundation_and_the_wall(tmp_path):
+    import json
+
+    import trimesh
+
+    from tests.conftest import shoha
+
+    scene = tmp_path / "wall.toml"
+    scene.write_text(WALL_TOML.format(wall="true") + '\n[foundation]\nkind = "rough"\namplitude_m = 0.1\n')
+    r = shoha("scene", "export", str(scene), "--out", str(tmp_path / "out"), "--json")
+    assert r.returncode == 0, r.stderr
+    names = sorted(p.rsplit("/", 1)[1] for p in json.loads(r.stdout)["paths"])
+    assert names == ["design.stl", "foundation.stl", "tolerance.stl", "wall.stl"]
+    for name in names:
+        mesh = trimesh.load(tmp_path / "out" / name)
+        assert mesh.is_watertight and mesh.volume > 0, name
+    wall = trimesh.load(tmp_path / "out" / "wall.stl")
+    assert wall.bounds[1, 0] == pytest.approx(-1.5)  # its face is the design's landward side
+    foundation = trimesh.load(tmp_path / "out" / "foundation.stl")
+    assert foundation.bounds[1, 2] == pytest.approx(0.1, abs=0.02)  # the rubble's top, 0.1 m at most
+    open_ = shoha("scene", "export", "mini", "--out", str(tmp_path / "mini"), "--json")
+    assert sorted(p.rsplit("/", 1)[1] for p in json.loads(open_.stdout)["paths"]) == [
+        "design.stl", "foundation.stl", "tolerance.stl"]
+
+
+def test_an_optimized_layout_never_crosses_the_wall():
+    """Every block of a wall-backed reference lies on the seaward side of the wall face.
+
+    A 4 m slice of the wall scene, so that the search has the whole wall to press
+    against in its 20 s.
+    """
+    from optimizer.api import optimize
+
+    short = parse_scene(WALL_TOML.format(wall="true").replace("length_m = 15.0", "length_m = 4.0"),
+                        "short.toml", None)
+    r = optimize(short, seed=1, time_limit=20)
+    x = [pose.apply(block.vertices)[:, 0].min() for _, block, pose in r.layout.placed()]
+    assert r.blocks > 0.6 * short.required_blocks and r.collisions == 0 and r.out_of_tolerance == 0
+    assert min(x) >= -1.5 - 1e-9
+    assert min(x) < -1.5 + 0.5  # blocks do come up to the wall: the test tests something

@@ -107,11 +107,11 @@ def batch_score(saves: tuple[str, ...], reference: str, source: str, block_type:
 @batch.command("optimize")
 @click.argument("scenes", nargs=-1, required=True)
 @click.option("--seeds", default="0", show_default=True, help="Seeds: 0-9, 1,4,7 or 0-3,10.")
-@click.option("--time-limit", type=click.FloatRange(min=0.0, min_open=True), default=120.0,
-              show_default=True, help="Wall-clock seconds per run.")
+@click.option("--time-limit", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="Wall-clock seconds per run; default as shoha optimize's, by each scene's count.")
 @click.option("--layouts", required=True, help="Folder for the layouts, SCENE-seedN.json.")
 @_runner_options
-def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float, layouts: str, out: str,
+def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None, layouts: str, out: str,
                    workers: int, scheduler: str | None, as_json: bool) -> None:
     """Optimize every scene with every seed; one row per run, layouts into a folder."""
     from geometry.scene import load_scene

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import click
 
+from geometry.errors import InputError
+
 from .common import Group, check_out, emit, json_option
 
 
@@ -47,3 +49,48 @@ def block_export(name: str, out: str, as_json: bool) -> None:
     path = check_out(out, (".stl", ".obj", ".glb"))
     get_block(name, Path.cwd()).export(path)
     emit({"path": str(path)}, as_json, f"wrote {path}")
+
+
+@block.command("tune")
+@click.argument("name")
+@click.option("--seconds", type=click.FloatRange(min=1.0, max=7200.0), default=180.0, show_default=True,
+              help="Time the tuner may take.")
+@click.option("--force", is_flag=True, help="Tune again even if a tuned pattern is cached.")
+@json_option
+def block_tune(name: str, seconds: float, force: bool, as_json: bool) -> None:
+    """Tune a block's placement pattern and cache it for `shoha optimize`.
+
+    The pattern is a two-site lattice of the block's own hangings, made as
+    dense as a crane can lay it (each block lowered after the ones before it
+    reaches the ground). It is cached by the SHA-256 of the block's mesh, so
+    every later run with the same block reuses it; `shoha optimize` tunes an
+    uncached block by itself, within a quarter of its time limit. The
+    built-in blocks come tuned.
+    """
+    import time
+
+    from geometry.blocks import get_block
+    from optimizer.search import patterns
+
+    b = get_block(name, Path.cwd())
+    start = time.perf_counter()
+    built_in = patterns.tuned_builtin(b, name)
+    cached = None if force or built_in is not None else patterns.cached_lattice(b)
+    if built_in is not None:
+        lattice, source, path = built_in, "built in", None
+    elif cached is not None:
+        lattice, source, path = cached, "cached", str(patterns.cache_path(b))
+    else:
+        try:
+            lattice = patterns.tune_lattice(b, seconds=seconds)
+        except RuntimeError as exc:
+            raise InputError(f"{name}: {exc}") from None
+        source, path = "tuned", str(patterns.cache_lattice(b, lattice))
+    payload = {"name": name, "source": source, "area_per_block_m2": lattice.area_per_block,
+               "area_per_block_per_h2": lattice.area_per_block / b.height**2,
+               "families": [lattice.family_a, lattice.family_b], "path": path,
+               "seconds": time.perf_counter() - start}
+    human = (f"{name}: {source} pattern, {lattice.area_per_block:.3f} m2 a block "
+             f"({lattice.area_per_block / b.height**2:.3f} H^2), hangings {lattice.family_a} and "
+             f"{lattice.family_b}" + (f"; {path}" if path else ""))
+    emit(payload, as_json, human)

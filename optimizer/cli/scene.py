@@ -37,6 +37,8 @@ def scene_info(scene_name: str, as_json: bool) -> None:
         "slope_run_per_rise": s.slope,
         "length_m": s.length,
         "foundation": s.foundation.kind,
+        "wall": s.wall,
+        "block_height_m": s.block.height,
     }
     human = (f"{s.name}: {s.block_type}, design {s.design_volume:.2f} m3, tolerance "
              f"{s.tolerance.volume:.2f} m3, {s.required_blocks} blocks required for "
@@ -46,10 +48,15 @@ def scene_info(scene_name: str, as_json: bool) -> None:
 
 @scene.command("export")
 @click.argument("scene_name", metavar="SCENE")
-@click.option("--out", required=True, help="Folder for design.stl and tolerance.stl.")
+@click.option("--out", required=True, help="Folder for the meshes.")
 @json_option
 def scene_export(scene_name: str, out: str, as_json: bool) -> None:
-    """Write the design and tolerance prisms as watertight STL meshes (world frame)."""
+    """Write the scene as watertight STL meshes, world frame.
+
+    design.stl and tolerance.stl (the prisms), foundation.stl (the
+    foundation's top, flat or rough, as a closed slab) and, behind a
+    wall-backed section, wall.stl.
+    """
     import trimesh
 
     from geometry.fileio import atomic_write
@@ -59,12 +66,16 @@ def scene_export(scene_name: str, out: str, as_json: bool) -> None:
     folder = Path(out)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{out}: is a file, not a folder")
+    meshes = {label: (prism.polytope.vertices, prism.polytope.faces)
+              for label, prism in (("design", s.design), ("tolerance", s.tolerance))}
+    meshes["foundation"] = s.foundation.slab()
+    if s.wall_box is not None:
+        wall = trimesh.creation.box(bounds=s.wall_box)
+        meshes["wall"] = (wall.vertices, wall.faces)
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
-    for label, prism in (("design", s.design), ("tolerance", s.tolerance)):
-        poly = prism.polytope
-        mesh = trimesh.Trimesh(poly.vertices, poly.faces, process=True)
+    for label, (vertices, faces) in meshes.items():
         path = folder / f"{label}.stl"
-        atomic_write(path, mesh.export(file_type="stl"))
+        atomic_write(path, trimesh.Trimesh(vertices, faces, process=True).export(file_type="stl"))
         paths.append(str(path))
     emit({"paths": paths}, as_json, "wrote " + ", ".join(paths))

@@ -386,9 +386,9 @@ def lattice_for(block: Block, name: str, tune_seconds: float = 0.0,
     (:func:`tune_lattice`) and cached; else the staggered half-brick bond,
     which needs no tuning.
     """
-    base = name.split(":")[0] if name.startswith("tetrapod") else name
-    if base in TUNED:
-        return InterlockLattice(**TUNED[base]).scaled(block.height)  # type: ignore[arg-type]
+    builtin = tuned_builtin(block, name)
+    if builtin is not None:
+        return builtin
     cached = cached_lattice(block)
     if cached is not None:
         return cached
@@ -402,9 +402,17 @@ def lattice_for(block: Block, name: str, tune_seconds: float = 0.0,
     return staggered(block)
 
 
+def tuned_builtin(block: Block, name: str) -> InterlockLattice | None:
+    """The built-in lattice of a built-in block type (:data:`TUNED`), scaled to its size; else None."""
+    base = name.split(":")[0] if name.startswith("tetrapod") else name
+    if base not in TUNED:
+        return None
+    return InterlockLattice(**TUNED[base]).scaled(block.height)  # type: ignore[arg-type]
+
+
 def cached_lattice(block: Block) -> InterlockLattice | None:
     """The lattice tuned for this exact block and cached, if there is one."""
-    path = _cache_path(block)
+    path = cache_path(block)
     if not path.is_file():
         return None
     try:
@@ -415,7 +423,7 @@ def cached_lattice(block: Block) -> InterlockLattice | None:
 
 def cache_lattice(block: Block, lattice: InterlockLattice) -> Path:
     """Keep a block's tuned lattice for later runs (atomically: whole or not at all)."""
-    path = _cache_path(block)
+    path = cache_path(block)
     path.parent.mkdir(parents=True, exist_ok=True)
     atomic_write(path, json.dumps(asdict(lattice)))
     return path
@@ -425,7 +433,8 @@ def cache_lattice(block: Block, lattice: InterlockLattice) -> Path:
 TUNER_VERSION = 2
 
 
-def _cache_path(block: Block) -> Path:
+def cache_path(block: Block) -> Path:
+    """Where a block's tuned lattice is cached: keyed by the SHA-256 of its mesh and the tuner's version."""
     digest = hashlib.sha256(np.ascontiguousarray(block.vertices).tobytes()).hexdigest()[:16]
     return cache_dir() / "lattices" / f"v{TUNER_VERSION}-{digest}.json"
 
@@ -455,9 +464,9 @@ def staggered(block: Block, family: str | None = None) -> InterlockLattice:
 def main(argv: list[str] | None = None) -> None:  # pragma: no cover - a maintenance tool
     """Tune a lattice, cache it for this block, and print it per unit height (for :data:`TUNED`).
 
-    ``python -m optimizer.patterns BLOCK [SEED [MAXITER]]``, e.g. for a
-    ``mesh:`` block before optimizing with it.
-    ``python -m optimizer.patterns --upper BLOCK [SEED [MAXITER]]`` tunes an
+    A maintainer's tool; users tune with ``shoha block tune``.
+    ``python -m optimizer.search.patterns BLOCK [SEED [MAXITER]]``;
+    ``python -m optimizer.search.patterns --upper BLOCK [SEED [MAXITER]]`` tunes an
     upper layer (:func:`tune_upper`) on the block's lattice instead.
     """
     import sys
@@ -477,9 +486,7 @@ def main(argv: list[str] | None = None) -> None:  # pragma: no cover - a mainten
         print(f"upper layer tops {tops[0]:.4f} m and {tops[1]:.4f} m at H = {block.height:.4f} m")  # noqa: T201
     else:
         lat = tune_lattice(block, seed=seed, maxiter=int(args[2]) if len(args) > 2 else 300)
-    path = _cache_path(block)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(asdict(lat)))
+    cache_lattice(block, lat)
     scaled = asdict(lat.scaled(1.0 / block.height))
     print(json.dumps({name: scaled}, indent=1))  # noqa: T201
     print(f"area per block {lat.area_per_block:.4f} m^2 at H = {block.height:.4f} m")  # noqa: T201
