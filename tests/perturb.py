@@ -37,7 +37,7 @@ TIP_YAWS_DEG = tuple(range(0, 360, 30))
 
 
 def _replace(layout: Layout, poses: dict[int, Pose]) -> Layout:
-    blocks = [Placement(p.id, p.type, poses.get(p.id, p.pose)) for p in layout.blocks]
+    blocks = [Placement(p.id, p.type, poses.get(p.id, p.pose), p.time_s) for p in layout.blocks]
     return Layout(layout.scene, blocks, dict(layout.extra), layout.base_dir)
 
 
