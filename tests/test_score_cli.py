@@ -172,3 +172,25 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, case):
     assert len(lines) == 1 and word in lines[0], lines
     assert "Traceback" not in r.stderr and r.stdout == ""
     assert not any(p.suffix in (".html", ".txt") for p in tmp_path.rglob("*")), "an output file was written"
+
+
+def test_the_worked_example_in_the_docs_is_what_shoha_prints():
+    """docs/scoring.md quotes ``shoha score`` on docs/examples/partial-save.json; the quote must stay true."""
+    from optimizer.score import Reference, score
+
+    root = Path(__file__).resolve().parents[1]
+    example = root / "docs" / "examples" / "partial-save.json"
+    r = shoha("score", "docs/examples/partial-save.json", "--reference", "tests/data/mini-reference.json",
+              cwd=root)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() in (root / "docs" / "scoring.md").read_text()
+    # Its counterfactuals: stopping before block 39, or laying block 39 in its place, leave two faults
+    # (10 points) and a finished layout that is the reference's.
+    ref = read_layout(REFERENCE)
+    scene = ref.load_scene()
+    reference = Reference.of(scene, ref.placed())
+    placed = read_layout(example).placed()
+    assert placed[39][0] == 39
+    for save, blocks in ((placed[:39], 39), (placed[:39] + [ref.placed()[39]], 40)):
+        np.testing.assert_allclose(score(scene, save, reference).score, 100.0 * blocks / 75 * 0.99 ** 10,
+                                   rtol=1e-12)
