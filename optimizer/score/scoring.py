@@ -703,7 +703,7 @@ class ScoreReport:
                          + ("" if self.completion_time_s is None else " (complete)"))
         for p in self.penalties:
             if p.points > 0:
-                lines.append(f"  -{p.points:.1f} points {p.name}: {p.rule}")
+                lines.append(f"  -{p.points:.2f} points {p.name}: {p.rule}")
         return "\n".join(lines)
 
 
