@@ -25,15 +25,17 @@ coverage       1 per percentage point of bare slope and crest beyond the
 time           0 per second of mean time per block above a par
 =============  ==========================================================
 
-The first three are faults against the rules, judged on the blocks laid. The
-next three are judged at the trainee's stage: the save is *finished* with
-the reference's own blocks for the places it has not filled yet, as many as
-it still lacks, and the finished save is compared with the reference. A
-block that is not laid yet is then neither charged (it is the reference's
-own) nor excused, and a missing block costs only progress. Adding the block
-the reference lays next leaves the finished save as it was, so it never
-costs quality, while progress rises: the score rises with every block laid
-well, for any non-negative weights.
+The first three are faults of a block of its own, judged on the blocks laid;
+such a block is charged for its fault and takes no further part. The next
+three are judged at the trainee's stage: the save's good blocks are
+*finished* with the reference's own blocks for the places they do not fill,
+as many as the save lacks (:meth:`Reference.finish`), and the finished save
+is compared with the whole reference. A block that is not laid yet is then
+neither charged (it is the reference's own) nor excused, a missing block
+costs only progress, and each fault is charged once. Adding the block the
+reference lays next, where it fits and stands, leaves the finished save as
+it was, so it costs no quality while progress rises: the score rises with
+every block laid well, for any non-negative weights.
 """
 
 from __future__ import annotations
