@@ -189,8 +189,13 @@ def _faulty_save(scene, ref_layout, case: str) -> list:
     raise ValueError(case)
 
 
+#: More cases of a kind already in the default suite run with ``make test-slow``.
+SLOW = pytest.mark.slow
+
+
 @pytest.mark.parametrize("case, stage", [
-    ("lifted", 10), ("lifted", 40), ("lifted", 74), ("pushed", 30), ("pushed", 62), ("nudged", 50),
+    pytest.param("lifted", 10, marks=SLOW), ("lifted", 40), pytest.param("lifted", 74, marks=SLOW),
+    pytest.param("pushed", 30, marks=SLOW), ("pushed", 62), pytest.param("nudged", 50, marks=SLOW),
     ("nudged", 60), ("tipped-at-60", 60), ("lifted-and-pushed", 45),
 ])
 def test_the_reference_next_block_never_lowers_the_score(scene, ref_layout, reference, case, stage):
@@ -240,8 +245,9 @@ def bases(scene, ref_layout) -> dict[str, Layout]:
 
 @pytest.mark.parametrize("base, fault", [
     ("reference", "tolerance"), ("reference", "collisions"), ("reference", "stability"),
-    ("first-50", "tolerance"), ("first-50", "collisions"), ("first-65", "tolerance"),
-    ("two-faults", "tolerance"), ("two-faults", "collisions"), ("two-faults", "stability"),
+    ("first-50", "tolerance"), ("first-50", "collisions"), pytest.param("first-65", "tolerance", marks=SLOW),
+    pytest.param("two-faults", "tolerance", marks=SLOW), pytest.param("two-faults", "collisions", marks=SLOW),
+    ("two-faults", "stability"),
 ])
 def test_each_fault_lowers_the_score_and_is_counted_once(scene, reference, bases, base, fault):
     """One more fault in a save: its own penalty counts it once, and the score falls.
@@ -272,7 +278,7 @@ def test_each_fault_lowers_the_score_and_is_counted_once(scene, reference, bases
         assert a.score < b.score, w
 
 
-@pytest.mark.parametrize("missing", [1, 10, 40])
+@pytest.mark.parametrize("missing", [1, pytest.param(10, marks=SLOW), 40])
 def test_a_missing_block_costs_progress_only(scene, reference, bases, missing):
     """A save without its last blocks: no penalty changes, only progress; there is no 'missing' penalty."""
     full = bases["two-faults"]
