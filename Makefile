@@ -43,7 +43,7 @@ bench: $(VENV)/.installed-test
 
 # The README's pictures: the browser tests' screenshots, copied to docs/.
 screenshots: $(VENV)/.installed-test
-	$(BIN)/python -m pytest -q -m browser --screenshots docs
+	$(BIN)/python -m pytest -q -m browser tests --screenshots docs
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check geometry settle optimizer benchmarks tests

@@ -19,6 +19,7 @@ import json
 import os
 import platform
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -39,6 +40,11 @@ from geometry.scene import Scene, load_scene
 ROOT = Path(__file__).resolve().parents[1]
 BENCH = ROOT / "benchmarks"
 RESULTS = BENCH / "results"
+
+# The benchmarks make trainee saves with the test helpers (tests/perturb.py), which
+# are not installed with shoha: import them from the repository's root.
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
 
 #: The 75-block reference layout of ``mini`` (benchmarks/layouts/README.md).
 MINI_75 = BENCH / "layouts" / "mini-75.json"

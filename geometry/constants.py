@@ -93,8 +93,6 @@ class Tolerances:
         The CP-SAT bound's selection beats the heuristic's ground layer only
         by more than this; its objective is rounded to 1e-6 m^3, and 1e-9
         m^3 separates a real gain from that rounding.
-    points : float, score points
-        Score weights that should add up to 100 may be off by rounding.
     fit : float, circumradii
         Convergence tolerance of the fit of the Shake Block's leg length
         (brentq, blocks.shake_fit): the block's shape to 1e-12 of its size.
@@ -126,7 +124,6 @@ class Tolerances:
     grid_edge: float = 1e-6
     energy: float = 1e-12
     objective_volume: float = 1e-9
-    points: float = 1e-9
     fit: float = 1e-12
     tuning: float = 1e-8
     prism_rtol: float = 1e-6

@@ -266,9 +266,19 @@ def coverage(scene: Scene, placed: Placed, spacing: float | None = None) -> Cove
         todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step)
         centres = cKDTree(np.array([pose.position for _, _, pose in placed]))
         radius = max(block.bounding_radius for _, block, _ in placed)
-        for i in np.flatnonzero(todo):
-            near = {int(owner[nearest[i]]), *centres.query_ball_point(pts[i], upper[i] + radius)}
-            dist[i] = min(float(distance_to_block(pts[i:i + 1], placed[k][1], placed[k][2])[0]) for k in near)
+        points = np.flatnonzero(todo)
+        dist[points] = np.inf
+        # The blocks that may hold each open point's nearest surface, gathered per block, so
+        # that each block measures all its points in one vectorised call (a call per point
+        # and block cost 0.8 of the 1 s a 75-block layout took; the distances are the same).
+        pairs: dict[int, list[int]] = {}
+        for i, near in zip(points, centres.query_ball_point(pts[points], upper[points] + radius),
+                           strict=True):
+            for k in {int(owner[nearest[i]]), *near}:
+                pairs.setdefault(k, []).append(int(i))
+        for k, members in pairs.items():
+            idx = np.array(members)
+            dist[idx] = np.minimum(dist[idx], distance_to_block(pts[idx], placed[k][1], placed[k][2]))
     bare = dist > limit
     share = float(100.0 * samples.area[bare].sum() / samples.area.sum())
     worst = int(np.argmax(dist))

@@ -11,6 +11,12 @@ Reading validates everything at this boundary, and the rest of shoha trusts
 the result. Unknown top-level keys are kept and written back; unknown block
 keys are errors. Floats are written with Python's shortest round-trip repr,
 so writing what was read is lossless.
+
+A save from a training session may carry times (docs/contract.md): each
+block an optional ``time_s``, when it was laid, and the file an optional
+``elapsed_s``, when it was saved, both in seconds since the session began.
+They are read, checked and written back; ``shoha score`` reports the
+completion time and blocks per hour from them.
 """
 
 from __future__ import annotations
@@ -37,6 +43,8 @@ FORMAT = "shoha-layout/1"
 MAX_COORDINATE = 1e6
 
 _BLOCK_KEYS = ("id", "type", "position", "quaternion")
+#: Block keys a file may leave out.
+_OPTIONAL_BLOCK_KEYS = ("time_s",)
 
 
 @dataclass(frozen=True)
@@ -51,11 +59,15 @@ class Placement:
         Block type name, as written in the file.
     pose : Pose
         Block frame to world frame.
+    time_s : float or None, seconds
+        When the block was laid, since the session began (a simulator's
+        save); None where the file gives no time.
     """
 
     id: int
     type: str
     pose: Pose
+    time_s: float | None = None
 
 
 @dataclass
@@ -86,6 +98,18 @@ class Layout:
         """``(id, Block, Pose)`` for every block, in installation order."""
         return [(p.id, get_block(p.type, self.base_dir), p.pose) for p in self.blocks]
 
+    def session_seconds(self) -> float | None:
+        """Seconds from the session's start to this save, or None where the file has no times.
+
+        The save's ``elapsed_s`` where it has one, else the latest ``time_s``
+        of its blocks.
+        """
+        elapsed = self.extra.get("elapsed_s")
+        if elapsed is not None:
+            return float(elapsed)
+        times = [p.time_s for p in self.blocks if p.time_s is not None]
+        return max(times) if times else None
+
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"format": FORMAT, "scene": self.scene}
         out.update(self.extra)
@@ -95,6 +119,7 @@ class Layout:
                 "type": p.type,
                 "position": [float(v) for v in p.pose.position],
                 "quaternion": [float(v) for v in p.pose.quaternion],
+                **({"time_s": p.time_s} if p.time_s is not None else {}),
             }
             for p in self.blocks
         ]
@@ -119,8 +144,10 @@ def read_layout(path: str | os.PathLike) -> Layout:
         Naming the file, and the block where there is one, for: a missing or
         unreadable file, malformed JSON, NaN or infinite numbers, a wrong
         format tag, wrong types, a quaternion whose norm is not within 1e-6 of
-        1, an unknown block type or block key, duplicate ids, or more than
-        ``MAX_BLOCKS`` blocks.
+        1, an unknown block type or block key, duplicate ids, more than
+        ``MAX_BLOCKS`` blocks, or a ``time_s`` or ``elapsed_s`` that is not a
+        finite, non-negative number of seconds (or an ``elapsed_s`` before a
+        block's ``time_s``).
     """
     path = Path(path)
     data = read_json(path)
@@ -151,16 +178,38 @@ def layout_from_dict(data: Any, source: str, base_dir: str | None) -> Layout:
             raise InputError(f"{source}: block {p.id}: duplicate id")
         seen.add(p.id)
         placements.append(p)
+    if "elapsed_s" in extra:
+        check_elapsed(extra["elapsed_s"], placements, source)
     return Layout(scene, placements, extra, base_dir)
+
+
+def check_seconds(value: Any, what: str, where: str) -> float:
+    """``value`` as seconds since the session began: a finite, non-negative number, else an error."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        raise InputError(f"{where}: {what} must be a number of seconds, not {value!r}")
+    if not math.isfinite(value) or value < 0:
+        raise InputError(f"{where}: {what} must be a finite, non-negative number of seconds, not {value!r}")
+    return float(value)
+
+
+def check_elapsed(value: Any, placements: list[Placement], source: str) -> float:
+    """A save's ``elapsed_s``: seconds (:func:`check_seconds`), and no earlier than any block's ``time_s``."""
+    elapsed = check_seconds(value, "elapsed_s", source)
+    for p in placements:
+        if p.time_s is not None and p.time_s > elapsed:
+            raise InputError(f"{source}: elapsed_s {elapsed:g} is earlier than block {p.id}'s "
+                             f"time_s {p.time_s:g}")
+    return elapsed
 
 
 def _placement(raw: Any, index: int, source: str, base_dir: str | None) -> Placement:
     where = f"{source}: block #{index}"
     if not isinstance(raw, dict):
         raise InputError(f"{where}: must be a JSON object")
-    unknown = [k for k in raw if k not in _BLOCK_KEYS]
+    allowed = _BLOCK_KEYS + _OPTIONAL_BLOCK_KEYS
+    unknown = [k for k in raw if k not in allowed]
     if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(_BLOCK_KEYS)})")
+        raise InputError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(allowed)})")
     missing = [k for k in _BLOCK_KEYS if k not in raw]
     if missing:
         raise InputError(f"{where}: missing {missing[0]!r}")
@@ -179,7 +228,8 @@ def _placement(raw: Any, index: int, source: str, base_dir: str | None) -> Place
     if np.abs(position).max() > MAX_COORDINATE:
         raise InputError(f"{where}: position is more than {MAX_COORDINATE:g} m from the origin")
     q = _vector(raw["quaternion"], 4, "quaternion", where)
-    return Placement(key, kind, Pose(position, normalised_quaternion(q, where)))
+    time_s = check_seconds(raw["time_s"], "time_s", where) if "time_s" in raw else None
+    return Placement(key, kind, Pose(position, normalised_quaternion(q, where)), time_s)
 
 
 def normalised_quaternion(q: np.ndarray, where: str) -> np.ndarray:

@@ -24,7 +24,7 @@ from .blocks import get_block
 from .constants import MAX_BLOCKS
 from .errors import InputError
 from .fileio import read_json
-from .layout import Layout, Placement, normalised_quaternion
+from .layout import Layout, Placement, check_elapsed, check_seconds, normalised_quaternion
 from .pose import Pose
 
 #: The permutation matrix that swaps y and z.
@@ -48,13 +48,18 @@ def read_unity_save(
     """Convert a simulator save to a layout.
 
     Blocks get ids ``0..n-1`` in save order, which is their installation
-    order. A block without ``type`` takes ``block``.
+    order. A block without ``type`` takes ``block``. A block's optional
+    ``time_s`` and the save's optional ``elapsed_s`` (seconds since the
+    session began) are kept: ``time_s`` on the block, ``elapsed_s`` among the
+    layout's top-level keys, so that ``shoha convert`` writes both.
 
     Raises
     ------
     InputError
         For a malformed save: missing or non-numeric fields, NaN, a rotation
-        whose norm is not 1, an unknown block type, or too many blocks.
+        whose norm is not 1, an unknown block type, too many blocks, or a
+        ``time_s`` or ``elapsed_s`` that is not a finite, non-negative number
+        of seconds (or an ``elapsed_s`` before a block's ``time_s``).
     """
     path = Path(path)
     data = read_json(path)
@@ -83,8 +88,13 @@ def read_unity_save(
         rotation = _fields(raw.get("rotation"), "xyzw", "rotation", where)
         q = np.array([rotation[c] for c in "xyzw"])
         normalised_quaternion(q, where)
-        placements.append(Placement(index, kind, unity_to_world(position, rotation, origin_arr)))
-    return Layout(scene, placements, {}, base_dir)
+        time_s = check_seconds(raw["time_s"], "time_s", where) if "time_s" in raw else None
+        placements.append(Placement(index, kind, unity_to_world(position, rotation, origin_arr), time_s))
+    extra = {}
+    if "elapsed_s" in data:
+        check_elapsed(data["elapsed_s"], placements, source)
+        extra["elapsed_s"] = data["elapsed_s"]
+    return Layout(scene, placements, extra, base_dir)
 
 
 def _fields(value: Any, names: str, what: str, where: str) -> dict[str, float]:

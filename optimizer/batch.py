@@ -42,19 +42,30 @@ MAX_ATTEMPTS = 3
 
 FORMATS = (".csv", ".jsonl")
 
+#: The score's penalties (optimizer/score/scoring.py), one column each.
+PENALTIES = ("tolerance", "collisions", "stability", "porosity", "interlock", "coverage", "time")
+
 SCORE_COLUMNS = (
     "item", "status", "error", "save", "save_sha256", "reference_sha256", "score",
+    "progress_percent", "quality", "penalty_points",
     "porosity_percent", "reference_porosity_percent", "porosity_gap_to_target_percent",
     "porosity_gap_to_reference_percent", "blocks", "required_blocks", "remaining_blocks",
     "out_of_tolerance", "collisions", "stable", "unstable_blocks", "poorly_interlocked",
-    "penalty_porosity", "penalty_missing", "penalty_tolerance", "penalty_collisions",
-    "penalty_stability", "penalty_interlock", "seconds",
+    "bare_share_percent", "finished_porosity_percent", "finished_poorly_interlocked",
+    "finished_bare_share_percent", "elapsed_s", "completion_time_s", "blocks_per_hour",
+    *(f"penalty_{name}" for name in PENALTIES), "seconds",
 )
 
 OPTIMIZE_COLUMNS = (
     "item", "status", "error", "scene", "seed", "time_limit_s", "porosity_percent", "blocks",
     "required_blocks", "collisions", "out_of_tolerance", "stable", "valid", "path", "seconds",
 )
+
+#: Keys of ``shoha score --json`` copied as they are into a score row.
+COPIED_KEYS = ("score", "progress_percent", "quality", "penalty_points", "porosity_percent",
+               "reference_porosity_percent", "porosity_gap_to_target_percent",
+               "porosity_gap_to_reference_percent", "blocks", "required_blocks", "remaining_blocks", "stable",
+               "elapsed_s", "completion_time_s", "blocks_per_hour")
 
 #: Columns that measure time, and so differ from run to run.
 TIMING_COLUMNS = ("seconds",)
@@ -218,23 +229,23 @@ def score_task(save: str, reference: str, source: str = "auto", block: str = "sh
         ref_layout, ref_scene, ref = _reference(reference, slices, layers)
         layout, scn = load_save(save, source, ref_layout, ref_scene, block, tuple(origin), scene)
         check_same_scene(scn, ref_scene, save)
-        result = score(scn, layout.placed(), ref, seconds=seconds).to_dict()
+        result = score(scn, layout.placed(), ref, seconds=seconds,
+                       elapsed_s=layout.session_seconds()).to_dict()
     except Exception as exc:  # noqa: BLE001 - one bad item must not stop the batch
         return _error_row(row, exc, start)
     pens = {p["name"]: p["points"] for p in result["penalties"]}
+    finished = result["finished"]
     row.update({
-        "status": "ok", "error": "", "score": result["score"],
-        "porosity_percent": result["porosity_percent"],
-        "reference_porosity_percent": result["reference_porosity_percent"],
-        "porosity_gap_to_target_percent": result["porosity_gap_to_target_percent"],
-        "porosity_gap_to_reference_percent": result["porosity_gap_to_reference_percent"],
-        "blocks": result["blocks"], "required_blocks": result["required_blocks"],
-        "remaining_blocks": result["remaining_blocks"],
+        "status": "ok", "error": "",
+        **{k: result[k] for k in COPIED_KEYS},
         "out_of_tolerance": len(result["out_of_tolerance"]), "collisions": len(result["collisions"]),
-        "stable": result["stable"], "unstable_blocks": len(result["unstable_blocks"]),
+        "unstable_blocks": len(result["unstable_blocks"]),
         "poorly_interlocked": len(result["interlock"]["flagged"]),
-        **{f"penalty_{name}": pens[name] for name in
-           ("porosity", "missing", "tolerance", "collisions", "stability", "interlock")},
+        "bare_share_percent": result["coverage"]["bare_share_percent"],
+        "finished_porosity_percent": finished["porosity_percent"],
+        "finished_poorly_interlocked": finished["poorly_interlocked"],
+        "finished_bare_share_percent": finished["bare_share_percent"],
+        **{f"penalty_{name}": pens[name] for name in PENALTIES},
         "result": result,
         "seconds": time.perf_counter() - start,
     })

@@ -15,7 +15,8 @@ the tests to check.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Collection, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -37,7 +38,7 @@ TIP_YAWS_DEG = tuple(range(0, 360, 30))
 
 
 def _replace(layout: Layout, poses: dict[int, Pose]) -> Layout:
-    blocks = [Placement(p.id, p.type, poses.get(p.id, p.pose)) for p in layout.blocks]
+    blocks = [Placement(p.id, p.type, poses.get(p.id, p.pose), p.time_s) for p in layout.blocks]
     return Layout(layout.scene, blocks, dict(layout.extra), layout.base_dir)
 
 
@@ -62,7 +63,7 @@ def _drop_world(scene: Scene, layout: Layout, without: set[int]) -> DropWorld:
     return DropWorld.of(scene.foundation, [b for b in layout.placed() if b[0] not in without])
 
 
-def lift_out_of_tolerance(scene: Scene, layout: Layout) -> tuple[Layout, int]:
+def lift_out_of_tolerance(scene: Scene, layout: Layout, skip: Collection[int] = ()) -> tuple[Layout, int]:
     """One block lifted by the crane and set down further out, through the tolerance slope.
 
     Rule: of the blocks on the foundation that carry no other block, take the
@@ -70,7 +71,8 @@ def lift_out_of_tolerance(scene: Scene, layout: Layout) -> tuple[Layout, int]:
     Move it straight away from the crest line (along ``sign(x)`` x) in steps
     of ``LIFT_STEP`` until, lowered there by the crane, it stands on the
     foundation alone and part of it lies outside the tolerance zone. Its
-    orientation is kept, so it stands as it stood.
+    orientation is kept, so it stands as it stood. Blocks in ``skip`` are
+    not taken.
 
     Returns
     -------
@@ -78,7 +80,8 @@ def lift_out_of_tolerance(scene: Scene, layout: Layout) -> tuple[Layout, int]:
     """
     report, carrying = _carriers(scene, layout)
     poses = {p.id: p for p in layout.blocks}
-    candidates = sorted((k for k, info in report.items() if info.foundation and k not in carrying),
+    candidates = sorted((k for k, info in report.items()
+                         if info.foundation and k not in carrying and k not in skip),
                         key=lambda k: (-abs(poses[k].pose.position[0]), k))
     for key in candidates:
         p = poses[key]
@@ -95,12 +98,14 @@ def lift_out_of_tolerance(scene: Scene, layout: Layout) -> tuple[Layout, int]:
     raise InputError("lift_out_of_tolerance: no block on the foundation is free to move")
 
 
-def push_together(scene: Scene, layout: Layout, push: float = 0.02) -> tuple[Layout, tuple[int, int]]:
+def push_together(scene: Scene, layout: Layout, push: float = 0.02, skip: Collection[int] = ()
+                  ) -> tuple[Layout, tuple[int, int]]:
     """Two touching blocks pushed into each other.
 
     Rule: of the pairs of touching blocks that both stand on the foundation
     and carry no other block, take the first by ids. Each moves ``push``
-    metres horizontally towards the other's centroid.
+    metres horizontally towards the other's centroid. Pairs with a block in
+    ``skip`` are not taken.
 
     Returns
     -------
@@ -109,10 +114,10 @@ def push_together(scene: Scene, layout: Layout, push: float = 0.02) -> tuple[Lay
     report, carrying = _carriers(scene, layout)
     poses = {p.id: p.pose for p in layout.blocks}
     for a in sorted(report):
-        if not report[a].foundation or a in carrying:
+        if not report[a].foundation or a in carrying or a in skip:
             continue
         for b in report[a].contacts:
-            if b <= a or not report[b].foundation or b in carrying:
+            if b <= a or not report[b].foundation or b in carrying or b in skip:
                 continue
             u = poses[b].position - poses[a].position
             u[2] = 0.0
@@ -123,7 +128,7 @@ def push_together(scene: Scene, layout: Layout, push: float = 0.02) -> tuple[Lay
     raise InputError("push_together: no two touching blocks stand free on the foundation")
 
 
-def stand_on_leg_tip(scene: Scene, layout: Layout) -> tuple[Layout, int]:
+def stand_on_leg_tip(scene: Scene, layout: Layout, skip: Collection[int] = ()) -> tuple[Layout, int]:
     """One block turned upside down and set on the tip of its single leg.
 
     For tetrapod-like blocks (one leg along local +z) upside down means that
@@ -131,7 +136,8 @@ def stand_on_leg_tip(scene: Scene, layout: Layout) -> tuple[Layout, int]:
     no other block, highest centroid first (then lowest id), and of the yaws
     ``TIP_YAWS_DEG`` in order, take the first that, lowered by the crane at
     the block's own (x, y), stays inside the tolerance zone and first touches
-    exactly one block and not the foundation.
+    exactly one block and not the foundation. Blocks in ``skip`` are not
+    taken.
 
     Returns
     -------
@@ -140,7 +146,8 @@ def stand_on_leg_tip(scene: Scene, layout: Layout) -> tuple[Layout, int]:
     report, carrying = _carriers(scene, layout)
     poses = {p.id: p.pose for p in layout.blocks}
     types = {p.id: p.type for p in layout.blocks}
-    candidates = sorted((k for k, info in report.items() if not info.foundation and k not in carrying),
+    candidates = sorted((k for k, info in report.items()
+                         if not info.foundation and k not in carrying and k not in skip),
                         key=lambda k: (-poses[k].position[2], k))
     flip = np.array([0.0, 1.0, 0.0, 0.0])  # half a turn about the block's x axis
     for key in candidates:
@@ -156,6 +163,30 @@ def stand_on_leg_tip(scene: Scene, layout: Layout) -> tuple[Layout, int]:
             if len(support) == 1 and not on_ground and outside_volume(block, pose, scene.tolerance) == 0:
                 return _replace(layout, {key: pose}), key
     raise InputError("stand_on_leg_tip: no block can be stood on a leg tip inside the tolerance zone")
+
+
+def repeated(fault: Callable[..., tuple[Layout, Any]], scene: Scene, layout: Layout, count: int
+             ) -> tuple[Layout, list[Any]]:
+    """``fault`` put in up to ``count`` times, each time into blocks no earlier time touched.
+
+    ``fault`` is :func:`lift_out_of_tolerance`, :func:`push_together` or
+    :func:`stand_on_leg_tip`. It stops early when its rule finds no block
+    left (the caller sees fewer than ``count`` in the list it returns).
+
+    Returns
+    -------
+    (Layout, list of what each call returned: an id, or a pair of ids)
+    """
+    touched: list[Any] = []
+    skip: set[int] = set()
+    for _ in range(count):
+        try:
+            layout, what = fault(scene, layout, skip=skip)
+        except InputError:
+            break
+        touched.append(what)
+        skip.update(what if isinstance(what, tuple) else (what,))
+    return layout, touched
 
 
 def remove_last(layout: Layout, count: int) -> tuple[Layout, list[int]]:

@@ -43,6 +43,27 @@ def test_written_file_follows_the_contract(tmp_path):
     assert set(data["blocks"][0]) == {"id", "type", "position", "quaternion"}
 
 
+def test_session_times_are_read_and_written_back(tmp_path):
+    """``time_s`` on blocks and ``elapsed_s`` on the save are optional, kept, and give the session's time."""
+    layout = _layout(3)
+    timed = Layout("mini", [Placement(p.id, p.type, p.pose, 30.0 * (i + 1)) for i, p in
+                            enumerate(layout.blocks[:2])] + layout.blocks[2:], {"elapsed_s": 95})
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    write_layout(timed, a)
+    data = json.loads(a.read_text())
+    assert data["elapsed_s"] == 95
+    assert [blk.get("time_s") for blk in data["blocks"]] == [30.0, 60.0, None]
+    back = read_layout(a)
+    assert [p.time_s for p in back.blocks] == [30.0, 60.0, None]
+    assert back.session_seconds() == 95.0
+    write_layout(back, b)
+    assert a.read_bytes() == b.read_bytes()
+    # Without elapsed_s, the latest block time; without any time, None.
+    back.extra.pop("elapsed_s")
+    assert back.session_seconds() == 60.0
+    assert _layout(2).session_seconds() is None
+
+
 def test_near_unit_quaternion_is_normalised(tmp_path):
     path = tmp_path / "q.json"
     path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [
@@ -72,6 +93,21 @@ BAD = [
     (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(colour="red")]}),
      "unknown key 'colour'"),
     (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(id=-1)]}), "id must be"),
+    # Times of a training session (docs/contract.md): finite, non-negative seconds.
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(time_s=-0.5)]}),
+     "time_s must be a finite, non-negative"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(time_s="12")]}),
+     "time_s must be a number"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(time_s=True)]}),
+     "time_s must be a number"),
+    ('{"format": "shoha-layout/1", "scene": "mini", "blocks": [{"id": 0, "type": "shake-4t", '
+     '"position": [0, 1, 1], "quaternion": [1, 0, 0, 0], "time_s": Infinity}]}', "Infinity"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "elapsed_s": -1, "blocks": []}),
+     "elapsed_s must be a finite, non-negative"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "elapsed_s": None, "blocks": []}),
+     "elapsed_s must be a number"),
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "elapsed_s": 10,
+                 "blocks": [_block(time_s=12.5)]}), "elapsed_s 10 is earlier than block 0's time_s 12.5"),
     (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(id=True)]}), "id must be"),
     (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(position=[0, 1])]}),
      "position must be"),

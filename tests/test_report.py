@@ -105,8 +105,10 @@ def test_report_in_headless_chromium(report, tmp_path, keep_screenshot):
                 " return g && g._fullLayout && g.querySelector('canvas') !== null; }", timeout=60_000)
             page.wait_for_timeout(1000)  # let WebGL draw the first frame
 
-            # The score on the page is the one the CLI printed.
+            # The score on the page is the one the CLI printed, with its two parts apart.
             assert page.inner_text("#score") == f"{scored['score']:.1f}"
+            assert page.inner_text("#progress") == f"{scored['progress_percent']:.1f}"
+            assert page.inner_text("#quality") == f"{scored['quality']:.1f}"
 
             # Faulty blocks in their colours: yellow (Fig. 11), red, orange.
             traces = page.evaluate("document.getElementById('view3d').data.map(t => [t.name, t.color])")
@@ -146,3 +148,34 @@ def test_report_in_headless_chromium(report, tmp_path, keep_screenshot):
     assert errors == [], f"console errors: {errors}"
     assert shot.stat().st_size > 50_000
     keep_screenshot(shot)
+
+
+def test_a_partial_save_shows_progress_and_quality_apart(tmp_path):
+    """The reference's first 45 blocks: 60 % done, and what is done is excellent (issue 26, property 5)."""
+    executable = _chromium()
+    from playwright.sync_api import sync_playwright
+
+    layout = read_layout(REFERENCE)
+    layout.blocks = layout.blocks[:45]
+    layout.base_dir = None
+    save = tmp_path / "first-45.json"
+    write_layout(layout, save)
+    out = tmp_path / "first-45.html"
+    r = shoha("score", str(save), "--reference", str(REFERENCE), "--html", str(out), "--json")
+    assert r.returncode == 0, r.stderr
+    scored = json.loads(r.stdout)
+    assert (scored["progress_percent"], scored["quality"], scored["score"]) == (60.0, 100.0, 60.0)
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=executable, args=FLAGS, headless=True)
+        try:
+            page = browser.new_page(viewport={"width": 1400, "height": 1000})
+            page.route("**/*", lambda route: route.continue_() if route.request.url.startswith(
+                ("file:", "data:", "blob:")) else route.abort())
+            page.goto(out.as_uri())
+            for element, text in (("#score", "60.0"), ("#progress", "60.0"), ("#quality", "100.0")):
+                assert page.is_visible(element), element
+                assert page.inner_text(element) == text, element
+            parts = page.inner_text(".parts")
+            assert "45 of 75 blocks laid" in parts and "0.0 penalty points" in parts
+        finally:
+            browser.close()

@@ -1,4 +1,4 @@
-"""The score (optimizer/score.py): a perturbed reference is scored on its faults and nothing else.
+"""The score (optimizer/score/scoring.py): a perturbed reference is scored on its faults and nothing else.
 
 The reference is tests/data/mini-reference.json (a valid 75-block layout of
 ``mini``). Each perturbation of optimizer/perturb.py puts one fault in; the
@@ -10,6 +10,7 @@ are computed from the files, never written down.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import manifold3d as m3
@@ -25,10 +26,14 @@ from geometry.errors import InputError
 from geometry.layout import Layout, read_layout
 from optimizer.score.interlock import InterlockRule, interlock
 from optimizer.score.scoring import (
+    Measures,
     Reference,
     ScoreWeights,
+    combined,
     penalties,
     porosity_map,
+    progress_percent,
+    quality_percent,
     score,
     scoring_zone,
     zone_prisms,
@@ -94,8 +99,13 @@ def _assert_zones_only_near(scene, base: dict, got: dict, poses: list) -> None:
 
 
 def _assert_score_is_formula(d: dict) -> None:
+    """score = progress x quality / 100, quality = 100 x 0.99 ** points (docs/scoring.md)."""
     total = sum(p["points"] for p in d["penalties"])
-    assert d["score"] == round(max(0.0, 100.0 - total), 1)
+    np.testing.assert_allclose(d["penalty_points"], total, rtol=1e-15)
+    np.testing.assert_allclose(d["quality"], 100.0 * 0.99 ** total, rtol=1e-12)
+    np.testing.assert_allclose(d["progress_percent"], 100.0 * min(d["blocks"], d["required_blocks"])
+                               / d["required_blocks"], rtol=1e-15)
+    np.testing.assert_allclose(d["score"], d["progress_percent"] * d["quality"] / 100.0, rtol=1e-15)
 
 
 def _pose(layout: Layout, key: int):
@@ -150,7 +160,8 @@ def test_lifted_out_of_tolerance(scene, ref_layout, reference, base):
     assert got["blocks"] == base["blocks"] and got["remaining_blocks"] == 0
     pens = {p["name"]: p for p in got["penalties"]}
     assert pens["tolerance"]["amount"] == 1 and pens["tolerance"]["points"] == 5.0
-    assert pens["collisions"]["points"] == pens["stability"]["points"] == pens["missing"]["points"] == 0
+    assert got["finished"]["left_out"] == [key]
+    assert all(p["points"] == 0 for name, p in pens.items() if name != "tolerance")
     _assert_score_is_formula(got)
     assert got["score"] < base["score"]
 
@@ -186,7 +197,8 @@ def test_two_blocks_pushed_into_each_other(scene, ref_layout, reference, base):
     assert got["blocks"] == base["blocks"]
     pens = {p["name"]: p for p in got["penalties"]}
     assert pens["collisions"]["amount"] == 1 and pens["collisions"]["points"] == 5.0
-    assert pens["tolerance"]["points"] == pens["stability"]["points"] == pens["missing"]["points"] == 0
+    assert got["finished"]["left_out"] == [a, b]
+    assert all(p["points"] == 0 for name, p in pens.items() if name != "collisions")
     _assert_score_is_formula(got)
     assert got["score"] < base["score"]
 
@@ -215,7 +227,8 @@ def test_block_on_a_leg_tip_is_the_only_unstable_one(scene, ref_layout, referenc
     assert got["blocks"] == base["blocks"]
     pens = {p["name"]: p for p in got["penalties"]}
     assert pens["stability"]["amount"] == 1 and pens["stability"]["points"] == 5.0
-    assert pens["tolerance"]["points"] == pens["collisions"]["points"] == pens["missing"]["points"] == 0
+    assert got["finished"]["left_out"] == [key]
+    assert all(p["points"] == 0 for name, p in pens.items() if name != "stability")
     _assert_score_is_formula(got)
     assert got["score"] < base["score"]
 
@@ -240,9 +253,10 @@ def test_ten_blocks_removed(scene, ref_layout, reference, base):
     # Nothing else.
     assert got["out_of_tolerance"] == [] and got["collisions"] == []
     assert got["stable"] is True and got["unstable_blocks"] == []
-    pens = {p["name"]: p for p in got["penalties"]}
-    np.testing.assert_allclose(pens["missing"]["points"], 25.0 * 10 / 75, rtol=1e-12)
-    assert pens["tolerance"]["points"] == pens["collisions"]["points"] == pens["stability"]["points"] == 0
+    # Missing blocks cost progress alone: the save finished with the reference's ten is the reference.
+    assert got["finished"]["added_reference_blocks"] == removed
+    assert all(p["points"] == 0 for p in got["penalties"])
+    assert got["progress_percent"] == 100.0 * 65 / 75 and got["quality"] == 100.0
     _assert_score_is_formula(got)
     assert got["score"] < base["score"]
 
@@ -269,53 +283,80 @@ def test_settled_copy_is_not_out_of_tolerance(scene, ref_layout, reference):
     assert got.collisions == []
 
 
+def _measures(**over) -> Measures:
+    args = {"blocks": 75, "required_blocks": 75, "out_of_tolerance": 0, "collisions": 0, "unstable": 0,
+            "porosity_percent": 57.0, "reference_porosity_percent": 57.0, "target_porosity_percent": 56.0,
+            "flagged": 3, "reference_flagged": 3, "bare_share_percent": 10.0,
+            "reference_bare_share_percent": 10.0, "seconds_per_block": None}
+    args.update(over)
+    return Measures(**args)
+
+
 @pytest.mark.parametrize(
     "kw, expected",
     [
-        # porosity beyond the reference's gap: 2.5 a point, capped at 25
-        ({"porosity_percent": 60.0}, {"porosity": 2.5 * (4.0 - 1.0)}),
-        ({"porosity_percent": 80.0}, {"porosity": 25.0}),
-        ({"porosity_percent": 55.5}, {}),  # closer to the target than the reference: no loss
-        ({"blocks": 65}, {"missing": 25.0 * 10 / 75}),
-        ({"blocks": 80}, {}),
         ({"out_of_tolerance": 2}, {"tolerance": 10.0}),
-        ({"out_of_tolerance": 9}, {"tolerance": 20.0}),
+        ({"out_of_tolerance": 90}, {"tolerance": 450.0}),  # no cap: every fault counts
         ({"collisions": 1}, {"collisions": 5.0}),
-        ({"collisions": 4}, {"collisions": 10.0}),
-        ({"unstable": 1}, {"stability": 5.0}),
-        ({"unstable": 30}, {"stability": 10.0}),
-        ({"flagged": 4}, {"interlock": 2.0}),  # 3 flagged in the reference
+        ({"unstable": 3}, {"stability": 15.0}),
+        # porosity beyond the reference's gap to the target: 2.5 a point
+        ({"porosity_percent": 60.0}, {"porosity": 2.5 * (4.0 - 1.0)}),
+        ({"porosity_percent": 55.5}, {}),  # closer to the target than the reference: no loss
+        ({"porosity_percent": 54.0}, {"porosity": 2.5 * (2.0 - 1.0)}),  # denser than the target counts too
+        ({"flagged": 5}, {"interlock": 4.0}),  # 3 flagged in the reference
         ({"flagged": 2}, {}),
-        ({"flagged": 40}, {"interlock": 10.0}),
-        # degenerate: nothing placed, nothing required
+        ({"bare_share_percent": 12.5}, {"coverage": 2.5}),
+        ({"bare_share_percent": 9.0}, {}),
+        # time: 0 points by default, however slow
+        ({"seconds_per_block": 600.0}, {}),
+        # degenerate: nothing placed, nothing required; missing blocks are no penalty
         ({"blocks": 0, "required_blocks": 0}, {}),
-        ({"blocks": 0}, {"missing": 25.0}),
+        ({"blocks": 0}, {}),
     ],
 )
 def test_penalty_table(kw, expected):
-    args = {"porosity_percent": 57.0, "reference_porosity_percent": 57.0, "target_porosity_percent": 56.0,
-            "blocks": 75, "required_blocks": 75, "out_of_tolerance": 0, "collisions": 0, "unstable": 0,
-            "flagged": 3, "reference_flagged": 3}
-    args.update(kw)
-    got = {p.name: p.points for p in penalties(**args)}
-    assert set(got) == {"porosity", "missing", "tolerance", "collisions", "stability", "interlock"}
+    got = {p.name: p.points for p in penalties(_measures(**kw))}
+    assert set(got) == {"tolerance", "collisions", "stability", "porosity", "interlock", "coverage", "time"}
     for name, points in got.items():
         np.testing.assert_allclose(points, expected.get(name, 0.0), rtol=1e-12, atol=0)
 
 
-def test_all_faults_at_once_score_zero():
-    pens = penalties(porosity_percent=100.0, reference_porosity_percent=56.0, target_porosity_percent=56.0,
-                     blocks=0, required_blocks=75, out_of_tolerance=99, collisions=99, unstable=99,
-                     flagged=99, reference_flagged=0)
-    assert sum(p.points for p in pens) == 100.0
-    assert sum(p.cap for p in pens) == 100.0
+def test_time_costs_only_when_a_trainer_gives_it_weight():
+    slow = _measures(seconds_per_block=80.0)
+    weights = ScoreWeights(time_per_second=0.5, par_seconds_per_block=50.0)
+    (time_penalty,) = [p for p in penalties(slow, weights) if p.name == "time"]
+    assert time_penalty.amount == 30.0 and time_penalty.points == 15.0
+    fast = penalties(_measures(seconds_per_block=40.0), weights)
+    assert [p.points for p in fast if p.name == "time"] == [0.0]
 
 
-def test_weights_must_add_up_to_100():
-    with pytest.raises(InputError):
-        ScoreWeights(porosity_max=30.0)
-    with pytest.raises(InputError):
-        ScoreWeights(tolerance_per_block=-1.0)
+def test_the_formula_for_a_partial_save():
+    """30 of 75 blocks laid, one out of tolerance, one pair pushed together, porosity 0.4 points worse."""
+    m = _measures(blocks=30, out_of_tolerance=1, collisions=1, porosity_percent=57.4)
+    pens = penalties(m)
+    points = sum(p.points for p in pens)
+    np.testing.assert_allclose(points, 5.0 + 5.0 + 2.5 * 0.4, rtol=1e-12)
+    progress, quality = progress_percent(30, 75), quality_percent(points)
+    assert progress == 40.0
+    np.testing.assert_allclose(quality, 100.0 * 0.99 ** 11.0, rtol=1e-12)
+    np.testing.assert_allclose(combined(progress, quality), 40.0 * 0.99 ** 11.0, rtol=1e-12)
+    assert f"{combined(progress, quality):.1f}" == "35.8" and f"{quality:.1f}" == "89.5"
+
+
+def test_many_faults_still_each_cost():
+    """No cap: the thousandth fault lowers the score as the first does, by 1 % per point of what is left."""
+    for faults in (0, 1, 10, 1000):
+        a = quality_percent(sum(p.points for p in penalties(_measures(out_of_tolerance=faults))))
+        b = quality_percent(sum(p.points for p in penalties(_measures(out_of_tolerance=faults + 1))))
+        assert 0.0 < b < a <= 100.0
+        np.testing.assert_allclose(b / a, 0.99 ** 5.0, rtol=1e-9)
+
+
+def test_weights_must_be_non_negative_numbers():
+    assert ScoreWeights(tolerance_per_block=0.0).tolerance_per_block == 0.0
+    for bad in (-1.0, float("nan"), float("inf"), "5", True):
+        with pytest.raises(InputError):
+            ScoreWeights(tolerance_per_block=bad)
 
 
 def test_interlock_rule_and_degenerate_layouts(scene, shake, cube):
@@ -352,20 +393,22 @@ _counts = st.integers(min_value=0, max_value=500)
 @settings(max_examples=200, deadline=None)
 @given(phi=st.floats(0.0, 100.0), ref_phi=st.floats(0.0, 100.0), blocks=_counts, required=_counts,
        out=_counts, pairs=_counts, unstable=_counts, flagged=_counts, ref_flagged=_counts,
-       extra=st.sampled_from(["out", "pairs", "unstable", "flagged"]))
+       bare=st.floats(0.0, 100.0), ref_bare=st.floats(0.0, 100.0),
+       extra=st.sampled_from(["out_of_tolerance", "collisions", "unstable", "flagged"]))
 def test_score_stays_in_range_and_one_more_fault_never_helps(phi, ref_phi, blocks, required, out, pairs,
-                                                              unstable, flagged, ref_flagged, extra):
-    args = {"porosity_percent": phi, "reference_porosity_percent": ref_phi, "target_porosity_percent": 56.0,
-            "blocks": blocks, "required_blocks": required, "out_of_tolerance": out, "collisions": pairs,
-            "unstable": unstable, "flagged": flagged, "reference_flagged": ref_flagged}
-    pens = penalties(**args)
-    assert all(0.0 <= p.points <= p.cap for p in pens)
+                                                              unstable, flagged, ref_flagged, bare, ref_bare,
+                                                              extra):
+    m = Measures(blocks, required, out, pairs, unstable, phi, ref_phi, 56.0, flagged, ref_flagged, bare,
+                 ref_bare, None)
+    pens = penalties(m)
+    assert all(p.points >= 0.0 for p in pens)
     total = sum(p.points for p in pens)
-    assert 0.0 <= 100.0 - total <= 100.0
-    worse = dict(args)
-    key = {"out": "out_of_tolerance", "pairs": "collisions", "unstable": "unstable",
-           "flagged": "flagged"}[extra]
-    worse[key] += 1
-    assert sum(p.points for p in penalties(**worse)) >= total
-    fewer = dict(args, blocks=max(0, blocks - 1))
-    assert sum(p.points for p in penalties(**fewer)) >= total
+    value = combined(progress_percent(blocks, required), quality_percent(total))
+    assert 0.0 <= value <= 100.0
+    worse = dataclasses.replace(m, **{extra: getattr(m, extra) + 1})
+    assert sum(p.points for p in penalties(worse)) >= total
+    if extra != "flagged":  # a rule fault always costs; interlock only beyond the reference's count
+        assert sum(p.points for p in penalties(worse)) > total
+    more = dataclasses.replace(m, blocks=blocks + 1)
+    assert combined(progress_percent(blocks + 1, required), quality_percent(total)) >= value
+    assert sum(p.points for p in penalties(more)) == total

@@ -70,6 +70,34 @@ def test_unity_save_scores_like_the_layout(tmp_path, layout_score, how):
         [b["contacts"] for b in layout_score["interlock"]["blocks"]]
 
 
+def test_completion_time_from_a_save_with_times(tmp_path, layout_score):
+    """Block times give the completion time and blocks per hour; they cost nothing by default (issue 25)."""
+    data = to_unity_save(read_layout(REFERENCE), (0.0, 0.0, 0.0))
+    for i, block in enumerate(data["blocks"]):
+        block["time_s"] = 30.0 * (i + 1)
+    save = tmp_path / "timed.json"
+    save.write_text(json.dumps(data))
+    got = _json(shoha("score", str(save), "--reference", str(REFERENCE), "--json"))
+    last = 30.0 * len(data["blocks"])
+    assert got["elapsed_s"] == got["completion_time_s"] == last
+    assert got["blocks_per_hour"] == 3600.0 * 75 / last
+    assert got["score"] == layout_score["score"] == 100.0
+    assert [p["points"] for p in got["penalties"] if p["name"] == "time"] == [0.0]
+    # A partial save with the session's elapsed time: no completion time yet, blocks per hour so far.
+    data["blocks"] = data["blocks"][:30]
+    data["elapsed_s"] = 1250.0
+    save.write_text(json.dumps(data))
+    got = _json(shoha("score", str(save), "--reference", str(REFERENCE), "--json"))
+    assert got["elapsed_s"] == 1250.0 and got["completion_time_s"] is None
+    assert got["blocks_per_hour"] == 3600.0 * 30 / 1250.0
+    assert "1250 s, 86.4 blocks per hour" in shoha("score", str(save), "--reference", str(REFERENCE)).stdout
+
+
+def test_a_save_without_times_reports_none(layout_score):
+    assert layout_score["elapsed_s"] is None and layout_score["completion_time_s"] is None
+    assert layout_score["blocks_per_hour"] is None
+
+
 def test_unity_save_at_the_wrong_origin_is_out_of_tolerance(tmp_path):
     save = tmp_path / "trainee.json"
     save.write_text(json.dumps(to_unity_save(read_layout(REFERENCE), (0.0, 0.0, 0.0))))
@@ -104,6 +132,15 @@ def _bad(tmp_path: Path) -> dict[str, tuple[list[str], str]]:
     bad_quat.write_text(json.dumps(data))
     neither = tmp_path / "neither.json"
     neither.write_text('{"blocks": 3}')
+    negative_time = tmp_path / "negative-time.json"
+    data = to_unity_save(read_layout(REFERENCE), (0.0, 0.0, 0.0))
+    data["blocks"][5]["time_s"] = -2.0
+    negative_time.write_text(json.dumps(data))
+    early = tmp_path / "early-elapsed.json"
+    layout = json.loads(REFERENCE.read_text())
+    layout["blocks"][0]["time_s"] = 90.0
+    layout["elapsed_s"] = 60.0
+    early.write_text(json.dumps(layout))
     ref = str(REFERENCE)
     html = str(tmp_path / "r.html")
     return {
@@ -112,6 +149,8 @@ def _bad(tmp_path: Path) -> dict[str, tuple[list[str], str]]:
         "bad quaternion": ([str(bad_quat), "--reference", ref, "--from", "unity", "--html", html],
                            "quaternion"),
         "neither format": ([str(neither), "--reference", ref, "--html", html], "neither"),
+        "negative time": ([str(negative_time), "--reference", ref, "--html", html], "time_s"),
+        "elapsed before a block": ([str(early), "--reference", ref, "--html", html], "elapsed_s 60"),
         "missing reference": ([ref, "--reference", "nope-ref.json", "--html", html], "nope-ref.json"),
         "reference is a save": ([ref, "--reference", str(neither), "--html", html], "format"),
         "other scene": ([ref, "--reference", ref, "--scene", "mini-section", "--html", html], "scene"),
@@ -133,3 +172,25 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, case):
     assert len(lines) == 1 and word in lines[0], lines
     assert "Traceback" not in r.stderr and r.stdout == ""
     assert not any(p.suffix in (".html", ".txt") for p in tmp_path.rglob("*")), "an output file was written"
+
+
+def test_the_worked_example_in_the_docs_is_what_shoha_prints():
+    """docs/scoring.md quotes ``shoha score`` on docs/examples/partial-save.json; the quote must stay true."""
+    from optimizer.score import Reference, score
+
+    root = Path(__file__).resolve().parents[1]
+    example = root / "docs" / "examples" / "partial-save.json"
+    r = shoha("score", "docs/examples/partial-save.json", "--reference", "tests/data/mini-reference.json",
+              cwd=root)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() in (root / "docs" / "scoring.md").read_text()
+    # Its counterfactuals: stopping before block 39, or laying block 39 in its place, leave two faults
+    # (10 points) and a finished layout that is the reference's.
+    ref = read_layout(REFERENCE)
+    scene = ref.load_scene()
+    reference = Reference.of(scene, ref.placed())
+    placed = read_layout(example).placed()
+    assert placed[39][0] == 39
+    for save, blocks in ((placed[:39], 39), (placed[:39] + [ref.placed()[39]], 40)):
+        np.testing.assert_allclose(score(scene, save, reference).score, 100.0 * blocks / 75 * 0.99 ** 10,
+                                   rtol=1e-12)

@@ -57,6 +57,20 @@ def test_matches_contract_matrix_formula_for_random_rotations(tmp_path):
     assert all(p.type == "shake-4t" for p in layout.blocks)
 
 
+def test_times_are_kept(tmp_path):
+    """A save's ``time_s`` per block and ``elapsed_s`` come through to the layout (docs/contract.md)."""
+    still = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+    save = {"elapsed_s": 120.5, "blocks": [
+        {"position": {"x": 0.0, "y": 0.9, "z": 2.0}, "rotation": still, "time_s": 41.0},
+        {"position": {"x": 2.0, "y": 0.9, "z": 2.0}, "rotation": still}]}
+    path = tmp_path / "save.json"
+    path.write_text(json.dumps(save))
+    layout = read_unity_save(path)
+    assert [p.time_s for p in layout.blocks] == [41.0, None]
+    assert layout.extra == {"elapsed_s": 120.5} and layout.session_seconds() == 120.5
+    assert [b.get("time_s") for b in layout.to_dict()["blocks"]] == [41.0, None]
+
+
 @pytest.mark.parametrize("save, message", [
     ({"blocks": [{"position": {"x": 0, "y": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]},
      "position.z"),
@@ -67,6 +81,14 @@ def test_matches_contract_matrix_formula_for_random_rotations(tmp_path):
     ({"blockz": []}, "blocks"),
     ({"blocks": [{"position": {"x": "1", "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]},
      "must be a number"),
+    ({"blocks": [{"position": {"x": 0, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1},
+                  "time_s": -3}]}, "time_s must be a finite, non-negative"),
+    ({"blocks": [{"position": {"x": 0, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1},
+                  "time_s": [1]}]}, "time_s must be a number"),
+    ({"elapsed_s": "late", "blocks": []}, "elapsed_s must be a number"),
+    ({"elapsed_s": 5, "blocks": [{"position": {"x": 0, "y": 0, "z": 0},
+                                  "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}, "time_s": 7}]},
+     "earlier than block 0's time_s 7"),
 ])
 def test_bad_saves(tmp_path, save, message):
     path = tmp_path / "save.json"

@@ -25,10 +25,12 @@ def score_cmd(save: str, reference: str, source: str, block_type: str, origin: s
               scene_name: str | None, seconds: float, html_out: str | None, as_json: bool) -> None:
     """Score a trainee's save against the reference layout, out of 100.
 
-    The score is 100 minus six capped penalties (docs/scoring.md): porosity
-    further from the target than the reference's, missing blocks, blocks out
-    of tolerance, collisions, unstable blocks, and poorly interlocked blocks
-    beyond the reference's count.
+    The score is the share of the required blocks laid (progress) times the
+    quality of what is laid; each penalty point takes 1 % of the quality
+    that is left (docs/scoring.md). Points are for blocks out of tolerance,
+    collisions and unstable blocks, and for porosity, poor interlock and bare
+    surface worse than the reference's at the same stage. Block times in the
+    save (time_s, elapsed_s) give the completion time and blocks per hour.
     """
     from geometry.layout import read_layout
     from optimizer.batch import load_save
@@ -47,7 +49,7 @@ def score_cmd(save: str, reference: str, source: str, block_type: str, origin: s
     check_same_scene(scene, ref_scene, save)
     placed = layout.placed()
     ref = Reference.of(ref_scene, ref_layout.placed())
-    result = score(scene, placed, ref, seconds=seconds)
+    result = score(scene, placed, ref, seconds=seconds, elapsed_s=layout.session_seconds())
     if html_path is not None:
         title = f"{Path(save).name} against {Path(reference).name}"
         write_report(html_path, scene, placed, result, title=title)

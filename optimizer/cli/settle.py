@@ -112,7 +112,7 @@ def settle_cmd(layout_path: str, scene_name: str | None, seconds: float, out: st
         spec = scene_name if scene_name is not None else layout.scene
         base = str(Path.cwd()) if scene_name is not None else layout.base_dir
         poses = result.poses
-        blocks = [Placement(p.id, p.type, poses[p.id]) for p in layout.blocks]
+        blocks = [Placement(p.id, p.type, poses[p.id], p.time_s) for p in layout.blocks]
         settled = Layout(_scene_reference(spec, base, path), blocks, dict(layout.extra))
         write_layout(settled, path)
         payload["path"] = str(path)

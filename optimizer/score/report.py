@@ -3,7 +3,9 @@
 The page holds plotly's JavaScript bundle inline (``plotly.offline.get_plotlyjs``,
 no CDN, no other request), and shows:
 
-* the score out of 100 and each penalty with its rule (docs/scoring.md);
+* the score out of 100 and, apart, its two parts: progress (blocks laid of
+  those required) and quality (what is laid), with each penalty and its rule
+  (docs/scoring.md);
 * an interactive 3D view of the trainee's layout, with check boxes that show
   and hide the design prism, the tolerance prism and the crest (the reference
   paper's Fig. 10 and its display settings, Table III item 9). Blocks out of
@@ -194,24 +196,36 @@ def build_html(scene: Scene, placed: Placed, report: ScoreReport, title: str = "
         full_html=False, include_plotlyjs=False, div_id="porosity-map", config=config)
 
     r = report
+    m = r.measures
+    stage = f"reference at {r.stage_blocks} blocks"
     metrics = [
         ("Score", f"{r.score:.1f} / 100"),
-        ("Porosity (exact)", f"{r.porosity_percent:.2f} %"),
+        ("Progress", f"{r.progress_percent:.1f} % ({r.blocks} of {r.required_blocks} blocks)"),
+        ("Quality", f"{r.quality:.1f} % ({r.points:.1f} penalty points)"),
+        ("Porosity (exact)", f"{r.porosity_percent:.2f} % ({stage}: {r.reference_porosity_percent:.2f} %)"),
         ("Target porosity", f"{r.target_porosity_percent:g} %"),
-        ("Reference porosity", f"{r.reference_porosity_percent:.2f} %"),
-        ("Gap to target", f"{r.porosity_percent - r.target_porosity_percent:+.2f} points"),
-        ("Gap to reference", f"{r.porosity_percent - r.reference_porosity_percent:+.2f} points"),
         ("Blocks placed / required", f"{r.blocks} / {r.required_blocks}"),
         ("Blocks remaining", str(r.remaining_blocks)),
         ("Out of tolerance", str(len(r.out_of_tolerance))),
         ("Collisions (pairs)", str(len(r.collisions))),
         ("Stable after settle",
          "yes" if r.stable else f"no: {len(r.unstable_ids)} of {r.blocks} blocks moved"),
-        ("Poorly interlocked", f"{len(r.interlock.flagged)} (reference {len(r.reference_flagged)})"),
+        ("Poorly interlocked", f"{len(r.interlock.flagged)} ({stage}: {len(r.reference_flagged)})"),
+        ("Bare slope and crest", f"{r.coverage.bare_share_percent:.2f} %"),
+        ("Finished with the reference's blocks", f"{len(r.added)} added" if r.added else "nothing to add"),
+        ("Finished: porosity",
+         f"{m.porosity_percent:.2f} % (reference {m.reference_porosity_percent:.2f} %)"),
+        ("Finished: poorly interlocked", f"{m.flagged} (reference {m.reference_flagged})"),
+        ("Finished: bare slope and crest",
+         f"{m.bare_share_percent:.2f} % (reference {m.reference_bare_share_percent:.2f} %)"),
     ]
+    if r.elapsed_s is not None:
+        rate = r.blocks_per_hour
+        metrics.append(("Time", f"{r.elapsed_s:g} s" + (f", {rate:.1f} blocks per hour" if rate else "")
+                        + (" (complete)" if r.completion_time_s is not None else "")))
     pen_rows = "".join(
         f"<tr><td>{html.escape(p.name)}</td><td>{html.escape(p.rule)}</td><td>{p.amount:.3g}</td>"
-        f"<td>{_points(p.points)}</td><td>{p.cap:g}</td></tr>" for p in r.penalties)
+        f"<td>{_points(p.points)}</td></tr>" for p in r.penalties)
     held = r.interlock.by_id()
     faults = []
     if r.out_of_tolerance:
@@ -241,6 +255,9 @@ def build_html(scene: Scene, placed: Placed, report: ScoreReport, title: str = "
 body {{ font-family: system-ui, sans-serif; margin: 1.2em; color: #222; }}
 header {{ display: flex; align-items: baseline; gap: 1.5em; }}
 #score {{ font-size: 3em; font-weight: 700; }}
+.parts {{ display: flex; gap: 2em; margin: 0.3em 0 1em; }}
+.part {{ border: 1px solid #ccc; border-radius: 6px; padding: 0.4em 0.9em; }}
+.part b {{ font-size: 1.6em; }}
 .row {{ display: flex; gap: 1.5em; flex-wrap: wrap; }}
 .row > div {{ flex: 1 1 28em; }}
 table {{ border-collapse: collapse; margin: 0.4em 0; }}
@@ -253,6 +270,12 @@ th {{ background: #f3f3f3; }}
 </head>
 <body>
 <header><span id="score">{r.score:.1f}</span><span>/ 100</span><h1>{heading}</h1></header>
+<div class="parts">
+<div class="part">Progress <b id="progress">{r.progress_percent:.1f}</b> %
+<br><small>{r.blocks} of {r.required_blocks} blocks laid</small></div>
+<div class="part">Quality <b id="quality">{r.quality:.1f}</b> %
+<br><small>of what is laid: {r.points:.1f} penalty points</small></div>
+</div>
 <section id="view">
 <h2>Layout</h2>
 <div class="toggles">{toggles}</div>
@@ -271,8 +294,10 @@ red is denser (lower porosity) than the {r.target_porosity_percent:g} % target, 
 <div class="row">
 <section id="metrics"><h2>Metrics</h2>{_table(metrics)}</section>
 <section id="penalties"><h2>How the score is made</h2>
-<table><tr><th>penalty</th><th>rule</th><th>counted</th><th>points</th><th>at most</th></tr>{pen_rows}</table>
-<p>score = 100 &minus; the sum of the penalties (docs/scoring.md). Contact: within
+<table><tr><th>penalty</th><th>rule</th><th>counted</th><th>points</th></tr>{pen_rows}</table>
+<p>score = progress &times; quality / 100, and quality = 100 &times; 0.99<sup>points</sup>: each penalty
+point takes 1 % of the quality that is left (docs/scoring.md). Porosity, interlock and coverage are
+judged on the layout finished with the reference's blocks for the places not yet filled. Contact: within
 {r.interlock.contact_gap * 100:g} cm; a block is poorly interlocked with fewer than {rule.min_contacts}
 contacts (the foundation counts as one) or fewer than {rule.min_neighbours} neighbours within
 {r.interlock.neighbour_distance:.2f} m.</p></section>

@@ -1,47 +1,58 @@
 """Scoring a trainee's layout against the reference (``shoha score``, docs/scoring.md).
 
-The metrics are the simulator's own (Table III of the reference paper:
-porosity, required and remaining blocks, out-of-tolerance blocks), with the
-stability verdict of a physics settle, the collisions, the interlock of each
-block and a porosity map by zone, each beside the reference's. They are
-combined into one score out of 100::
+The score is the share of the required blocks laid, times the quality of
+what is laid::
 
-    score = 100 - (porosity + missing + tolerance + collisions + stability + interlock)
+    progress_percent = 100 x min(blocks, required) / required
+    quality          = 100 x 0.99 ** points
+    score            = progress_percent x quality / 100
 
-where each penalty is capped, and the caps add up to 100 (``ScoreWeights``):
+Quality starts at 100 % and each penalty point takes 1 % of the quality that
+is left, so every fault costs, however many came before it, and quality never
+goes below 0. The points (``ScoreWeights``) are for:
 
-=============  ==========================================================  ====
-penalty        points                                                      cap
-=============  ==========================================================  ====
-porosity       2.5 per percentage point the porosity is further from the    25
-               target than the reference's is
-missing        25 x (blocks still to place) / (blocks required)             25
-tolerance      5 per block sticking out of the tolerance zone               20
-collisions     5 per pair of blocks pushed into each other                  10
-stability      5 per block the settle moves or turns too far                10
-interlock      2 per poorly interlocked block beyond the reference's count  10
-=============  ==========================================================  ====
+=============  ==========================================================
+penalty        points, by default
+=============  ==========================================================
+tolerance      5 per block sticking out of the tolerance zone
+collisions     5 per pair of blocks pushed into each other
+stability      5 per block the settle moves or turns too far
+porosity       2.5 per percentage point further from the target than the
+               reference
+interlock      2 per poorly interlocked block beyond the reference's count
+coverage       1 per percentage point of bare slope and crest beyond the
+               reference's
+time           0 per second of mean time per block above a par
+=============  ==========================================================
 
-Porosity and interlock are measured against the reference, because the
-reference shows what the scene allows: a trainee loses points only where they
-do worse than it. The other four are faults against the rules (Table II of
-the paper, physics) and count in full. A valid reference (complete, inside
-the tolerance zone, free of collisions, stable) therefore scores 100 against
-itself, and no layout scores higher.
+The first three are faults of a block of its own, judged on the blocks laid;
+such a block is charged for its fault and takes no further part. The next
+three are judged at the trainee's stage: the save's good blocks are
+*finished* with the reference's own blocks for the places they do not fill,
+as many as the save lacks (:meth:`Reference.finish`), and the finished save
+is compared with the whole reference. A block that is not laid yet is then
+neither charged (it is the reference's own) nor excused, a missing block
+costs only progress, and each fault is charged once. Adding the block the
+reference lays next, where it fits and stands, leaves the finished save as
+it was, so it costs no quality while progress rises: the score rises with
+every block laid well, for any non-negative weights.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from geometry.blocks import Block
 from geometry.collision import Collision, collisions
 from geometry.constants import tol
+from geometry.coverage import CoverageReport, coverage
 from geometry.errors import InputError
 from geometry.porosity import exact_filled_volume, porosity
 from geometry.pose import Pose
@@ -58,36 +69,63 @@ DEFAULT_SLICES = 4
 DEFAULT_LAYERS = 2
 #: Seed of the settle a score runs: the same save always gets the same score.
 SETTLE_SEED = 0
+#: Each penalty point keeps this share of the quality that is left (takes 1 %).
+POINT_KEEPS = 0.99
+#: A laid block fills a place of the reference when its centroid is within
+#: this fraction of the block height H of the reference block's (0.25 H,
+#: 0.42 m for the 4-ton Shake Block: well under half the 1.3 m or more between
+#: neighbouring centroids, so a block fills at most one place).
+PLACE_FRACTION = 0.25
+#: Most finished saves whose coverage a Reference keeps (docs/scoring.md).
+CACHED_STAGES = 256
 
 
 @dataclass(frozen=True)
 class ScoreWeights:
-    """Points per fault and the cap of each penalty (docs/scoring.md).
+    """Points per fault (docs/scoring.md); a trainer may change any of them.
 
-    The caps add up to 100, so the score stays in [0, 100]. All points are
-    points of the score out of 100.
+    Every weight is a non-negative number; 0 makes that kind of fault free.
+    Each point takes 1 % of the quality that is left.
+
+    Attributes
+    ----------
+    tolerance_per_block : float, points
+        Per block sticking out of the tolerance zone.
+    collision_per_pair : float, points
+        Per pair of blocks pushed into each other (deeper than 5 mm).
+    unstable_per_block : float, points
+        Per block the settle moves more than 0.05 H or turns more than 5 degrees.
+    porosity_per_percent : float, points
+        Per percentage point the finished save's porosity is further from the
+        target than the reference's.
+    interlock_per_block : float, points
+        Per poorly interlocked block of the finished save beyond the reference's count.
+    coverage_per_percent : float, points
+        Per percentage point of the slopes' and crest's area the finished save
+        leaves bare beyond the reference's.
+    time_per_second : float, points
+        Per second the mean time per block laid is above ``par_seconds_per_block``;
+        0 by default: the time is reported, not scored.
+    par_seconds_per_block : float, seconds
+        The par time per block for ``time_per_second``.
     """
 
-    porosity_per_percent: float = 2.5
-    porosity_max: float = 25.0
-    missing_max: float = 25.0
     tolerance_per_block: float = 5.0
-    tolerance_max: float = 20.0
     collision_per_pair: float = 5.0
-    collision_max: float = 10.0
     unstable_per_block: float = 5.0
-    stability_max: float = 10.0
+    porosity_per_percent: float = 2.5
     interlock_per_block: float = 2.0
-    interlock_max: float = 10.0
+    coverage_per_percent: float = 1.0
+    time_per_second: float = 0.0
+    par_seconds_per_block: float = 60.0
 
     def __post_init__(self) -> None:
         for name, v in self.__dict__.items():
-            if not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0:
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or v < 0:
                 raise InputError(f"score weights: {name} must be a non-negative number, not {v!r}")
-        caps = (self.porosity_max + self.missing_max + self.tolerance_max + self.collision_max
-                + self.stability_max + self.interlock_max)
-        if abs(caps - 100.0) > tol.points:
-            raise InputError(f"score weights: the caps must add up to 100, not {caps:g}")
+
+    def to_dict(self) -> dict[str, float]:
+        return dict(self.__dict__)
 
 
 @dataclass(frozen=True)
@@ -182,14 +220,35 @@ def porosity_map(scene: Scene, placed: Placed, slices: int = DEFAULT_SLICES,
     return out
 
 
+@dataclass(frozen=True)
+class Stage:
+    """The reference after its first ``blocks`` blocks in crane order, for display beside a save.
+
+    Attributes
+    ----------
+    blocks : int
+    porosity_percent : float
+        Exact porosity of the design prism.
+    flagged : list of int
+        Ids of its poorly interlocked blocks.
+    zones : list of Zone
+    """
+
+    blocks: int
+    porosity_percent: float
+    flagged: list[int]
+    zones: list[Zone]
+
+
 @dataclass
 class Reference:
-    """What a score needs from the reference layout, computed once per batch.
+    """What a score needs from the reference layout, computed once and reused (a batch, a session).
 
     Attributes
     ----------
     scene : Scene
     placed : list of (id, Block, Pose)
+        In crane order.
     porosity_percent : float
         Exact porosity of the design prism.
     flagged : list of int
@@ -197,6 +256,14 @@ class Reference:
     zones : list of Zone
     out_of_tolerance, collisions : int
         Its own faults (zero for a valid reference).
+    slices, layers : int
+        Of the porosity maps.
+    rule : InterlockRule
+
+    Notes
+    -----
+    The reference's coverage (0.2-0.8 s) and its stages are computed when a
+    score first needs them and kept: a batch or a live session pays once.
     """
 
     scene: Scene
@@ -208,11 +275,15 @@ class Reference:
     collisions: int
     slices: int
     layers: int
+    rule: InterlockRule = field(default_factory=InterlockRule)
+    _coverage: CoverageReport | None = field(default=None, repr=False, compare=False)
+    _stages: dict[int, Stage] = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def of(cls, scene: Scene, placed: Placed, slices: int = DEFAULT_SLICES, layers: int = DEFAULT_LAYERS,
            rule: InterlockRule | None = None) -> Reference:
         placed = list(placed)
+        rule = rule if rule is not None else InterlockRule()
         return cls(
             scene=scene,
             placed=placed,
@@ -223,23 +294,155 @@ class Reference:
             collisions=len(collisions(placed)),
             slices=slices,
             layers=layers,
+            rule=rule,
         )
+
+    @property
+    def coverage(self) -> CoverageReport:
+        """Coverage of the whole reference (computed once)."""
+        if self._coverage is None:
+            self._coverage = coverage(self.scene, self.placed)
+        return self._coverage
+
+    def stage(self, blocks: int) -> Stage:
+        """The reference after its first ``blocks`` blocks (at most all of them), computed once."""
+        n = min(max(0, blocks), len(self.placed))
+        cached = self._stages.get(n)
+        if cached is None:
+            if n == len(self.placed):
+                cached = Stage(n, self.porosity_percent, list(self.flagged), list(self.zones))
+            else:
+                first = self.placed[:n]
+                cached = Stage(n, porosity(self.scene, first, "exact").percent,
+                               interlock(first, self.scene.foundation, self.rule).flagged,
+                               porosity_map(self.scene, first, self.slices, self.layers))
+            if len(self._stages) >= CACHED_STAGES:
+                self._stages.pop(next(iter(self._stages)))
+            self._stages[n] = cached
+        return cached
+
+    def place_radius(self) -> float:
+        """Metres: a laid block within this of a reference block's centroid fills its place."""
+        return PLACE_FRACTION * self.scene.block.height
+
+    def finish(self, placed: Placed, left_out: Collection[int] = ()
+               ) -> tuple[list[tuple[int, Block, Pose]], list[int]]:
+        """A save finished with the reference's blocks for the places its good blocks do not fill.
+
+        A laid block fills a reference place when its centroid is within
+        :meth:`place_radius` of the reference block's; pairs are matched
+        nearest first, each block and place once (:func:`filled_places`).
+        The blocks ``left_out`` (those with a fault of their own, charged for
+        it) are taken out, and the places they filled are free again. The
+        free places get the reference's blocks, in crane order, as many as
+        the save has fewer good blocks than the reference. A save that
+        follows the crane order is thus finished with the reference's
+        remaining blocks, and one laid in another order with the same blocks
+        finishes as the reference.
+
+        Returns
+        -------
+        (finished, added)
+            ``finished``: the good blocks and the added reference blocks,
+            ordered by the place they fill (crane order; good blocks that
+            fill no place last, in save order), so that the reference's own
+            blocks in any order give the reference's list exactly. ``added``:
+            the reference ids of the added blocks, in crane order. The added
+            blocks keep their reference ids unless one is also a save id;
+            then they all move up past the save's largest id.
+        """
+        placed = list(placed)
+        skip = set(left_out)
+        places = filled_places(placed, self.placed, self.place_radius())
+        good = [i for i, (k, _, _) in enumerate(placed) if k not in skip]
+        key = {i: len(self.placed) + i for i in good}
+        for place, i in places.items():
+            if i in key:
+                key[i] = place
+        filled = {key[i] for i in good if key[i] < len(self.placed)}
+        todo = max(0, len(self.placed) - len(good))
+        free = [k for k in range(len(self.placed)) if k not in filled][:todo]
+        ids = {k for k, _, _ in placed}
+        added = [self.placed[k] for k in free]
+        shift = max(ids) + 1 if any(k in ids for k, _, _ in added) else 0
+        rows = [(key[i], placed[i]) for i in good]
+        rows += [(k, (rk + shift, b, p)) for k, (rk, b, p) in zip(free, added, strict=True)]
+        rows.sort(key=lambda row: row[0])
+        return [b for _, b in rows], [k for k, _, _ in added]
+
+
+def filled_places(placed: Placed, reference: Placed, radius: float) -> dict[int, int]:
+    """Which laid block fills each reference place: ``{reference index: save index}``.
+
+    A laid block fills a place when its centroid is within ``radius``
+    metres of the reference block's. Pairs are taken nearest first (ties by
+    save index, then reference index), each block and each place at most
+    once. Adding a block exactly at a free place leaves every other pair as
+    it was: its pair comes first, and no other pair held that place.
+    """
+    if not placed or not reference:
+        return {}
+    mine = cKDTree(np.array([p.position for _, _, p in placed]))
+    theirs = cKDTree(np.array([p.position for _, _, p in reference]))
+    pairs = mine.sparse_distance_matrix(theirs, radius, output_type="ndarray")
+    taken: set[int] = set()
+    filled: dict[int, int] = {}
+    for k in np.lexsort((pairs["j"], pairs["i"], pairs["v"])):
+        i, j = int(pairs["i"][k]), int(pairs["j"][k])
+        if i not in taken and j not in filled:
+            taken.add(i)
+            filled[j] = i
+    return filled
+
+
+@dataclass(frozen=True)
+class Measures:
+    """What a score counts, before the weights (docs/scoring.md).
+
+    Attributes
+    ----------
+    blocks, required_blocks : int
+    out_of_tolerance, collisions, unstable : int
+        Faults of the blocks laid: blocks, pairs, blocks.
+    porosity_percent, reference_porosity_percent, target_porosity_percent : float
+        The finished save's porosity, the reference's, and the scene's target.
+    flagged, reference_flagged : int
+        Poorly interlocked blocks of the finished save, and of the reference.
+    bare_share_percent, reference_bare_share_percent : float
+        Bare share of the slopes and crest, finished save and reference.
+    seconds_per_block : float or None
+        Mean time per block laid, seconds; None without times.
+    """
+
+    blocks: int
+    required_blocks: int
+    out_of_tolerance: int
+    collisions: int
+    unstable: int
+    porosity_percent: float
+    reference_porosity_percent: float
+    target_porosity_percent: float
+    flagged: int
+    reference_flagged: int
+    bare_share_percent: float
+    reference_bare_share_percent: float
+    seconds_per_block: float | None = None
 
 
 @dataclass(frozen=True)
 class Penalty:
-    """Points taken off the score for one kind of fault.
+    """Points for one kind of fault.
 
     Attributes
     ----------
     name : str
-        ``porosity``, ``missing``, ``tolerance``, ``collisions``, ``stability`` or ``interlock``.
+        ``tolerance``, ``collisions``, ``stability``, ``porosity``,
+        ``interlock``, ``coverage`` or ``time``.
     amount : float
-        What was counted: percentage points beyond the reference's porosity
-        gap, missing blocks, blocks or pairs.
+        What was counted: blocks, pairs, percentage points beyond the
+        reference's, or seconds per block above par.
     points : float
-        Points taken off (at most ``cap``).
-    cap : float
+        ``amount`` times its weight.
     rule : str
         The rule in words, for the report.
     """
@@ -247,52 +450,57 @@ class Penalty:
     name: str
     amount: float
     points: float
-    cap: float
     rule: str
 
     def to_dict(self) -> dict[str, Any]:
-        return {"name": self.name, "amount": self.amount, "points": self.points, "cap": self.cap,
-                "rule": self.rule}
+        return {"name": self.name, "amount": self.amount, "points": self.points, "rule": self.rule}
 
 
-def penalties(
-    *,
-    porosity_percent: float,
-    reference_porosity_percent: float,
-    target_porosity_percent: float,
-    blocks: int,
-    required_blocks: int,
-    out_of_tolerance: int,
-    collisions: int,
-    unstable: int,
-    flagged: int,
-    reference_flagged: int,
-    weights: ScoreWeights | None = None,
-) -> list[Penalty]:
-    """The six penalties of the score (module docstring, docs/scoring.md)."""
+def penalties(m: Measures, weights: ScoreWeights | None = None) -> list[Penalty]:
+    """The seven penalties of a score (module docstring, docs/scoring.md)."""
     w = weights if weights is not None else ScoreWeights()
-    excess = max(0.0, abs(porosity_percent - target_porosity_percent)
-                 - abs(reference_porosity_percent - target_porosity_percent))
-    missing = max(0, required_blocks - blocks)
-    extra_flagged = max(0, flagged - reference_flagged)
-    return [
-        Penalty("porosity", excess, min(w.porosity_max, w.porosity_per_percent * excess), w.porosity_max,
-                f"{w.porosity_per_percent:g} per percentage point further from the "
-                f"{target_porosity_percent:g}% target than the reference"),
-        Penalty("missing", float(missing),
-                w.missing_max * missing / required_blocks if required_blocks else 0.0, w.missing_max,
-                f"{w.missing_max:g} x blocks still to place / blocks required"),
-        Penalty("tolerance", float(out_of_tolerance),
-                min(w.tolerance_max, w.tolerance_per_block * out_of_tolerance), w.tolerance_max,
-                f"{w.tolerance_per_block:g} per block out of the tolerance zone"),
-        Penalty("collisions", float(collisions), min(w.collision_max, w.collision_per_pair * collisions),
-                w.collision_max, f"{w.collision_per_pair:g} per pair of blocks pushed into each other"),
-        Penalty("stability", float(unstable), min(w.stability_max, w.unstable_per_block * unstable),
-                w.stability_max, f"{w.unstable_per_block:g} per block that moves or turns in the settle"),
-        Penalty("interlock", float(extra_flagged),
-                min(w.interlock_max, w.interlock_per_block * extra_flagged), w.interlock_max,
-                f"{w.interlock_per_block:g} per poorly interlocked block beyond the reference's"),
+    target = m.target_porosity_percent
+    porosity_excess = max(0.0, abs(m.porosity_percent - target) - abs(m.reference_porosity_percent - target))
+    flagged_excess = max(0, m.flagged - m.reference_flagged)
+    bare_excess = max(0.0, m.bare_share_percent - m.reference_bare_share_percent)
+    slow = max(0.0, m.seconds_per_block - w.par_seconds_per_block) if m.seconds_per_block is not None else 0.0
+    amounts = [
+        ("tolerance", float(m.out_of_tolerance), w.tolerance_per_block,
+         f"{w.tolerance_per_block:g} per block out of the tolerance zone"),
+        ("collisions", float(m.collisions), w.collision_per_pair,
+         f"{w.collision_per_pair:g} per pair of blocks pushed into each other"),
+        ("stability", float(m.unstable), w.unstable_per_block,
+         f"{w.unstable_per_block:g} per block that moves or turns in the settle"),
+        ("porosity", porosity_excess, w.porosity_per_percent,
+         f"{w.porosity_per_percent:g} per percentage point the finished layout is further from the "
+         f"{target:g}% target than the reference"),
+        ("interlock", float(flagged_excess), w.interlock_per_block,
+         f"{w.interlock_per_block:g} per poorly interlocked block of the finished layout beyond the "
+         f"reference's"),
+        ("coverage", bare_excess, w.coverage_per_percent,
+         f"{w.coverage_per_percent:g} per percentage point of slope and crest the finished layout "
+         f"leaves bare beyond the reference"),
+        ("time", slow, w.time_per_second,
+         f"{w.time_per_second:g} per second of mean time per block above {w.par_seconds_per_block:g} s"),
     ]
+    return [Penalty(name, amount, weight * amount, rule) for name, amount, weight, rule in amounts]
+
+
+def progress_percent(blocks: int, required: int) -> float:
+    """Blocks laid of those required, percent in [0, 100] (100 when none are required)."""
+    if required <= 0:
+        return 100.0
+    return 100.0 * min(blocks, required) / required
+
+
+def quality_percent(points: float) -> float:
+    """Quality from penalty points: 100 x 0.99 ** points, percent in (0, 100]."""
+    return 100.0 * POINT_KEEPS ** points
+
+
+def combined(progress: float, quality: float) -> float:
+    """The score: progress times quality, out of 100."""
+    return progress * quality / 100.0
 
 
 @dataclass
@@ -302,22 +510,57 @@ class ScoreReport:
     Attributes
     ----------
     score : float
-        Out of 100, rounded to 0.1.
+        ``progress_percent x quality / 100``, in [0, 100]; not rounded, so
+        that every fault shows in it (the text and the report show 0.1).
+    progress_percent : float
+        Blocks laid of those required, percent.
+    quality : float
+        Percent in (0, 100]: ``100 x 0.99 ** (sum of the penalty points)``.
     penalties : list of Penalty
-    porosity_percent, reference_porosity_percent, target_porosity_percent : float
+    weights : ScoreWeights
+    measures : Measures
+        What the penalties count, before the weights.
+    porosity_percent : float
+        The save's own porosity.
+    reference_porosity_percent : float
+        The reference's after as many blocks as the save has (its first in
+        crane order): the porosity the save's stage compares with.
+    target_porosity_percent : float
     blocks, required_blocks : int
     out_of_tolerance : list of (id, outside volume m^3)
     collisions : list of Collision
     settle : SettleResult
     interlock : InterlockReport
+        Of the save's own blocks.
+    coverage : CoverageReport
+        Of the save's own blocks.
+    finished_coverage : CoverageReport
+        Of the save finished with the reference's blocks.
+    added : list of int
+        Reference ids of the blocks that finish the save.
+    left_out : list of int
+        Ids of the save's blocks with a fault of their own (out of
+        tolerance, colliding, unstable), left out of the finished save.
     zones, reference_zones : list of Zone
+        The save's porosity map, and the reference's at the same stage.
     reference_flagged : list of int
+        Poorly interlocked blocks of the reference at the same stage.
+    stage_blocks : int
+        The stage: the reference's first blocks the save is shown beside
+        (as many as the save has, at most all).
+    elapsed_s : float or None
+        Seconds from the session's start to the save.
+    scene : str
     seconds : float
         Compute time, seconds.
     """
 
     score: float
+    progress_percent: float
+    quality: float
     penalties: list[Penalty]
+    weights: ScoreWeights
+    measures: Measures
     porosity_percent: float
     reference_porosity_percent: float
     target_porosity_percent: float
@@ -327,10 +570,16 @@ class ScoreReport:
     collisions: list[Collision]
     settle: SettleResult
     interlock: InterlockReport
+    coverage: CoverageReport
+    finished_coverage: CoverageReport
+    added: list[int]
+    left_out: list[int]
     zones: list[Zone]
     reference_zones: list[Zone]
     reference_flagged: list[int]
+    stage_blocks: int
     scene: str
+    elapsed_s: float | None = None
     seconds: float = 0.0
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -346,11 +595,38 @@ class ScoreReport:
     def unstable_ids(self) -> list[int]:
         return self.settle.unstable_ids
 
+    @property
+    def points(self) -> float:
+        """Sum of the penalty points."""
+        return float(sum(p.points for p in self.penalties))
+
+    @property
+    def completion_time_s(self) -> float | None:
+        """Seconds to lay the required blocks: ``elapsed_s`` of a complete save, else None."""
+        return self.elapsed_s if self.remaining_blocks == 0 else None
+
+    @property
+    def blocks_per_hour(self) -> float | None:
+        """Blocks laid per hour of the session, or None without times (or at 0 s)."""
+        if self.elapsed_s is None or self.elapsed_s <= 0:
+            return None
+        return 3600.0 * self.blocks / self.elapsed_s
+
+    def reweighted(self, weights: ScoreWeights) -> ScoreReport:
+        """The same measurements scored with other weights (no settle or geometry again)."""
+        pens = penalties(self.measures, weights)
+        quality = quality_percent(sum(p.points for p in pens))
+        return dataclasses.replace(self, penalties=pens, weights=weights, quality=quality,
+                                   score=combined(self.progress_percent, quality))
+
     def to_dict(self) -> dict[str, Any]:
         """The keys of ``shoha score --json`` (docs/contract.md, "CLI"), and more."""
-        s = self.settle
+        s, m = self.settle, self.measures
         return {
             "score": self.score,
+            "progress_percent": self.progress_percent,
+            "quality": self.quality,
+            "penalty_points": self.points,
             "porosity_percent": self.porosity_percent,
             "reference_porosity_percent": self.reference_porosity_percent,
             "target_porosity_percent": self.target_porosity_percent,
@@ -365,11 +641,27 @@ class ScoreReport:
             "remaining_blocks": self.remaining_blocks,
             "interlock": self.interlock.to_dict(),
             "reference_flagged": list(self.reference_flagged),
+            "stage_blocks": self.stage_blocks,
+            "coverage": self.coverage.to_dict(),
+            "finished": {
+                "left_out": list(self.left_out),
+                "added_reference_blocks": list(self.added),
+                "porosity_percent": m.porosity_percent,
+                "reference_porosity_percent": m.reference_porosity_percent,
+                "poorly_interlocked": m.flagged,
+                "reference_poorly_interlocked": m.reference_flagged,
+                "bare_share_percent": m.bare_share_percent,
+                "reference_bare_share_percent": m.reference_bare_share_percent,
+            },
             "zones": {
                 "save": [z.to_dict() for z in self.zones],
                 "reference": [z.to_dict() for z in self.reference_zones],
             },
             "penalties": [p.to_dict() for p in self.penalties],
+            "weights": self.weights.to_dict(),
+            "elapsed_s": self.elapsed_s,
+            "completion_time_s": self.completion_time_s,
+            "blocks_per_hour": self.blocks_per_hour,
             "settle": {
                 "max_displacement_m": s.max_displacement_m,
                 "max_rotation_deg": s.max_rotation_deg,
@@ -384,19 +676,36 @@ class ScoreReport:
         }
 
     def summary(self) -> str:
-        """The score and its penalties in plain words."""
-        lines = [f"score {self.score:.1f} / 100",
-                 f"porosity {self.porosity_percent:.2f}% (target {self.target_porosity_percent:g}%, "
-                 f"reference {self.reference_porosity_percent:.2f}%)",
-                 f"blocks {self.blocks} of {self.required_blocks} required "
-                 f"({self.remaining_blocks} remaining)",
-                 f"out of tolerance: {len(self.out_of_tolerance)}; collisions: {len(self.collisions)}; "
-                 f"{'stable' if self.stable else 'UNSTABLE: blocks ' + str(self.unstable_ids)}; "
-                 f"poorly interlocked: {len(self.interlock.flagged)} "
-                 f"(reference {len(self.reference_flagged)})"]
+        """The score, its two parts and its penalties in plain words."""
+        m = self.measures
+        stage = f"the reference at {self.stage_blocks} blocks"
+        lines = [
+            f"score {self.score:.1f} / 100: progress {self.progress_percent:.1f}% "
+            f"({self.blocks} of {self.required_blocks} blocks), quality {self.quality:.1f}%",
+            f"porosity {self.porosity_percent:.2f}% ({stage}: {self.reference_porosity_percent:.2f}%)",
+            f"out of tolerance: {len(self.out_of_tolerance)}; collisions: {len(self.collisions)}; "
+            f"{'stable' if self.stable else 'UNSTABLE: blocks ' + str(self.unstable_ids)}; "
+            f"poorly interlocked: {len(self.interlock.flagged)} ({stage}: {len(self.reference_flagged)})",
+        ]
+        if self.added or self.left_out:
+            parts = ([f"{len(self.left_out)} faulty blocks left out"] if self.left_out else []) + (
+                [f"the reference's blocks added at {len(self.added)} places"] if self.added else [])
+            lines.append(f"finished ({', '.join(parts)}): porosity {m.porosity_percent:.2f}% (reference "
+                         f"{m.reference_porosity_percent:.2f}%, target {m.target_porosity_percent:g}%); "
+                         f"poorly interlocked {m.flagged} (reference {m.reference_flagged}); bare slope and "
+                         f"crest {m.bare_share_percent:.2f}% "
+                         f"(reference {m.reference_bare_share_percent:.2f}%)")
+        else:
+            lines.append(f"bare slope and crest {m.bare_share_percent:.2f}% "
+                         f"(reference {m.reference_bare_share_percent:.2f}%)")
+        if self.elapsed_s is not None:
+            rate = self.blocks_per_hour
+            lines.append(f"time {self.elapsed_s:g} s"
+                         + (f", {rate:.1f} blocks per hour" if rate is not None else "")
+                         + ("" if self.completion_time_s is None else " (complete)"))
         for p in self.penalties:
             if p.points > 0:
-                lines.append(f"  -{p.points:.1f} {p.name}: {p.rule}")
+                lines.append(f"  -{p.points:.2f} points {p.name}: {p.rule}")
         return "\n".join(lines)
 
 
@@ -414,6 +723,7 @@ def score(
     seed: int = SETTLE_SEED,
     weights: ScoreWeights | None = None,
     rule: InterlockRule | None = None,
+    elapsed_s: float | None = None,
 ) -> ScoreReport:
     """Score a layout against a reference.
 
@@ -422,15 +732,20 @@ def score(
     scene : Scene
         The scene the layout is for; its design must be the reference's.
     placed : sequence of (id, Block, Pose)
-        The trainee's blocks, world frame.
+        The trainee's blocks, world frame, in the order laid.
     reference : Reference
-        ``Reference.of(scene, reference_layout.placed())``.
+        ``Reference.of(scene, reference_layout.placed())``; keep it to score
+        many saves (it caches what it computes).
     seconds : float
         Simulated seconds of the stability settle.
     seed : int
         Seed of the settle; fixed so that a save always gets the same score.
     weights : ScoreWeights, optional
     rule : InterlockRule, optional
+        The reference's rule by default.
+    elapsed_s : float, optional
+        Seconds from the session's start to the save (``Layout.session_seconds``),
+        for the completion time, the blocks per hour and the time penalty.
 
     Returns
     -------
@@ -438,42 +753,72 @@ def score(
     """
     start = time.perf_counter()
     check_same_scene(scene, reference.scene, "score")
+    weights = weights if weights is not None else ScoreWeights()
+    rule = rule if rule is not None else reference.rule
     placed = list(placed)
-    phi = porosity(scene, placed, "exact").percent
+    n = len(placed)
+    own_porosity = porosity(scene, placed, "exact").percent
     outside = out_of_tolerance(placed, scoring_zone(scene))
     pairs = collisions(placed)
     settled = settle(scene, placed, seconds=seconds, seed=seed)
     held = interlock(placed, scene.foundation, rule)
+    own_cover = coverage(scene, placed)
     zones = porosity_map(scene, placed, reference.slices, reference.layers)
-    pens = penalties(
-        porosity_percent=phi,
-        reference_porosity_percent=reference.porosity_percent,
-        target_porosity_percent=scene.target_porosity,
-        blocks=len(placed),
+    stage = reference.stage(n)
+    # Judged at the trainee's stage: the save's good blocks finished with the reference's own.
+    # A block with a fault of its own is charged for that fault and left out here.
+    left_out = sorted({k for k, _ in outside} | {c.a for c in pairs} | {c.b for c in pairs}
+                      | set(settled.unstable_ids))
+    finished, added = reference.finish(placed, left_out)
+    if added or left_out:
+        finished_porosity = porosity(scene, finished, "exact").percent
+        finished_flagged = len(interlock(finished, scene.foundation, rule).flagged)
+        finished_cover = coverage(scene, finished)
+    else:
+        finished_porosity, finished_flagged, finished_cover = own_porosity, len(held.flagged), own_cover
+    measures = Measures(
+        blocks=n,
         required_blocks=scene.required_blocks,
         out_of_tolerance=len(outside),
         collisions=len(pairs),
         unstable=len(settled.unstable_ids),
-        flagged=len(held.flagged),
-        reference_flagged=len(reference.flagged),
-        weights=weights,
-    )
-    value = max(0.0, 100.0 - sum(p.points for p in pens))
-    return ScoreReport(
-        score=round(value, 1),
-        penalties=pens,
-        porosity_percent=phi,
+        porosity_percent=finished_porosity,
         reference_porosity_percent=reference.porosity_percent,
         target_porosity_percent=scene.target_porosity,
-        blocks=len(placed),
+        flagged=finished_flagged,
+        reference_flagged=len(reference.flagged),
+        bare_share_percent=finished_cover.bare_share_percent,
+        reference_bare_share_percent=reference.coverage.bare_share_percent,
+        seconds_per_block=elapsed_s / n if elapsed_s is not None and n else None,
+    )
+    pens = penalties(measures, weights)
+    progress = progress_percent(n, scene.required_blocks)
+    quality = quality_percent(sum(p.points for p in pens))
+    return ScoreReport(
+        score=combined(progress, quality),
+        progress_percent=progress,
+        quality=quality,
+        penalties=pens,
+        weights=weights,
+        measures=measures,
+        porosity_percent=own_porosity,
+        reference_porosity_percent=stage.porosity_percent,
+        target_porosity_percent=scene.target_porosity,
+        blocks=n,
         required_blocks=scene.required_blocks,
         out_of_tolerance=outside,
         collisions=pairs,
         settle=settled,
         interlock=held,
+        coverage=own_cover,
+        finished_coverage=finished_cover,
+        added=added,
+        left_out=left_out,
         zones=zones,
-        reference_zones=reference.zones,
-        reference_flagged=reference.flagged,
+        reference_zones=stage.zones,
+        reference_flagged=stage.flagged,
+        stage_blocks=stage.blocks,
         scene=scene.name,
+        elapsed_s=elapsed_s,
         seconds=time.perf_counter() - start,
     )
