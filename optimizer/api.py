@@ -30,20 +30,21 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from geometry.checks import check_layout
+from geometry.checks import CheckReport, check_layout
 from geometry.errors import InputError
-from geometry.layout import Layout
+from geometry.layout import Layout, Placement
 from geometry.scene import Scene
 
 from .search.anneal import Annealing
 from .search.beam import BeamSearch
 from .search.build import Build
 from .search.cpsat import BoundStats, CpSat
+from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, raised_check, stands
@@ -61,6 +62,46 @@ def default_time_limit(scene: Scene) -> float:
     return min(MAX_DEFAULT_LIMIT, max(MIN_DEFAULT_LIMIT, SECONDS_PER_BLOCK * scene.required_blocks))
 
 
+#: What the end of a run costs, measured on 2 cores: a settle of 75 Shake Blocks (5 convex
+#: pieces) takes about 0.6 s and of 1000 about 11 s, growing as n^1.15
+#: (benchmarks/results/settle_speed.csv) and with the pieces; the counts, tolerance,
+#: collisions and porosity about 0.2 s for 1005 blocks; the coverage about 2 ms a square
+#: metre of slopes and crest (0.24 s for mini's 171 m2, 4.4 s for full's 2310 m2).
+SETTLE_SECONDS_75 = 0.6
+SETTLE_EXPONENT = 1.15
+CHECK_SECONDS = (0.3, 0.0005)  # a fixed part, and per block
+COVERAGE_SECONDS_PER_M2 = 0.002
+#: Reserves are this many times the estimate (a loaded machine runs slower), and take at
+#: most this share of the limit (a limit too short for the scene places few blocks, whose
+#: settle and checks are quick).
+RESERVE_MARGIN = 2.0
+RESERVE_SHARE = 0.5
+
+
+def settle_reserve(scene: Scene) -> float:
+    """Seconds kept for the settle that confirms a layout (one; repairs take what time is left)."""
+    n, pieces = scene.required_blocks, len(scene.block.pieces)
+    return RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5
+
+
+def check_reserve(scene: Scene) -> float:
+    """Seconds kept for the final checks: counts, tolerance, collisions and porosity."""
+    return RESERVE_MARGIN * (CHECK_SECONDS[0] + CHECK_SECONDS[1] * scene.required_blocks)
+
+
+def coverage_reserve(scene: Scene) -> float:
+    """Seconds the coverage of the final layout takes, with the margin (it grows with the surface)."""
+    d = scene.design
+    run = np.hypot(d.bottom_half_width - d.top_half_width, d.height)
+    slopes = run if d.wall_x is not None else 2 * run
+    return RESERVE_MARGIN * COVERAGE_SECONDS_PER_M2 * (slopes + 2 * d.top_half_width) * d.length
+
+
+#: Times the pocket fill may go on from a confirmed layout short of its count, and the
+#: confirmations' cost (of the last one) kept free for the one after it.
+REFILLS = 3
+REFILL_SETTLES = 2.0
+
 #: Share of the time limit, and most seconds, that tuning a new block's pattern may take.
 TUNE_SHARE = 0.25
 TUNE_MAX_SECONDS = 60.0
@@ -77,7 +118,8 @@ class OptimizeResult:
     Attributes
     ----------
     layout : Layout
-        Blocks in crane order, ids ``0..n-1``.
+        Blocks in crane order, ids ``0..n-1`` (with ``keep``: the kept blocks
+        first with their own ids, then ids counting on from the largest).
     porosity_percent : float
         Exact porosity of the design prism.
     blocks, required_blocks : int
@@ -97,6 +139,13 @@ class OptimizeResult:
         the layout is valid): what porosity loses to blocks that stick out.
         Not ``shoha check``'s ``outside_volume_m3``, which is a block's volume
         outside the tolerance zone.
+    coverage : dict or None
+        ``shoha check``'s coverage object (bare share, largest bare distance,
+        where it is); None when the time limit left no room to measure it.
+    kept : dict or None
+        With ``keep``: how many blocks were kept, and the ids of those among
+        them that collide, stick out of the tolerance zone or fail the settle
+        (they stay all the same; a layout with any is not valid).
     """
 
     layout: Layout
@@ -113,6 +162,8 @@ class OptimizeResult:
     gap: dict[str, Any] = field(default_factory=dict)
     outside_design_prism_m3: float = 0.0
     path: str | None = None
+    coverage: dict[str, Any] | None = None
+    kept: dict[str, Any] | None = None
 
     @property
     def valid(self) -> bool:
@@ -130,12 +181,24 @@ class OptimizeResult:
         verdict = {True: "stable", False: "NOT stable", None: "not settled"}[self.stable]
         text = (f"{head}; {self.collisions} collisions, {self.out_of_tolerance} out of tolerance, "
                 f"{verdict}; {self.seconds:.1f} s")
+        if self.coverage is not None:
+            c = self.coverage
+            text += f"; bare {c['bare_share_percent']:.1f}%"
+            if c["max_bare_m"] is not None:
+                text += f", farthest {c['max_bare_m']:.2f} m from a block"
         off = self.porosity_percent - self.target_porosity_percent
         if self.blocks >= self.required_blocks and abs(off) > TARGET_POINTS:
             text += (f"\nporosity is {abs(off):.2f} points {'above' if off > 0 else 'below'} the target")
             if off > 0 and self.outside_design_prism_m3 > 0:
                 text += (f": {self.outside_design_prism_m3:.1f} m³ of the blocks lies outside the design "
                          "prism, in the tolerance zone")
+        if self.kept is not None:
+            k = self.kept
+            faults = [f"{len(k[key])} {words}: {', '.join(map(str, k[key]))}"
+                      for key, words in (("colliding", "collide"), ("out_of_tolerance", "stick out"),
+                                         ("unstable", "do not stand")) if k[key]]
+            text += (f"\nkept {k['blocks']} blocks where they were"
+                     + (f"; of those, {'; '.join(faults)}" if faults else ""))
         return text
 
     def to_dict(self) -> dict[str, Any]:
@@ -151,6 +214,8 @@ class OptimizeResult:
             "path": self.path,
             "valid": self.valid,
             "outside_design_prism_m3": self.outside_design_prism_m3,
+            "coverage": self.coverage,
+            "kept": self.kept,
             "settle": self.settle,
             "phases": self.phases,
             "gap": self.gap,
@@ -158,8 +223,10 @@ class OptimizeResult:
 
 
 def default_strategies(bound: bool = False) -> list[Strategy]:
-    """Beam search, then annealing; with ``bound``, then the CP-SAT bound on the ground layer."""
-    out: list[Strategy] = [BeamSearch(accept=raised_check, judge=stands), Annealing(accept=raised_check)]
+    """Beam search, a pocket fill where it fell short, then annealing; with ``bound``, then the
+    CP-SAT bound on the ground layer."""
+    out: list[Strategy] = [BeamSearch(accept=raised_check, judge=stands), PocketFill(accept=raised_check),
+                           Annealing(accept=raised_check)]
     return out + [CpSat()] if bound else out
 
 
@@ -173,6 +240,7 @@ def optimize(
     report: Callable[[str, Build, str], None] | None = None,
     bound: bool = False,
     clock: Clock = time.monotonic,
+    keep: Sequence[Placement] = (),
 ) -> OptimizeResult:
     """Find a reference layout for ``scene``.
 
@@ -201,6 +269,11 @@ def optimize(
         ``strategies`` is given).
     clock : callable
         The clock the time limit is read on; tests inject one.
+    keep : sequence of Placement
+        A partial layout to complete (``shoha optimize --keep``): its blocks
+        stay exactly where they are, first in crane order, and the search
+        places the rest around and on them. Each must be of the scene's block
+        type.
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
@@ -212,8 +285,9 @@ def optimize(
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
         lattice = lattice_for(scene.block, scene.block_type, min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS),
                               clock)
-    # Keep a share of the budget for the physics confirmation and the final checks.
-    reserve = min(0.15 * time_limit, 10.0) if settle_layout else 0.0
+    # The search ends early enough for the confirming settle and the final checks.
+    reserve = min(RESERVE_SHARE * time_limit, check_reserve(scene) + coverage_reserve(scene)
+                  + (settle_reserve(scene) if settle_layout else 0.0))
     problem = Problem(
         scene=scene,
         required=scene.required_blocks,
@@ -224,10 +298,11 @@ def optimize(
         report=report,
         clock=clock,
     )
-    phase: Phase | None = None
+    phase = Phase(kept_build(scene, keep)) if keep else None
     phases = []
     gap: dict[str, Any] = {}
-    for strategy in strategies if strategies is not None else default_strategies(bound):
+    strategies_run = list(strategies) if strategies is not None else default_strategies(bound)
+    for strategy in strategies_run:
         t0 = clock()
         phase = strategy.run(problem, phase, rng)
         phases.append({"strategy": strategy.name, "seconds": clock() - t0, "blocks": len(phase.build),
@@ -241,13 +316,37 @@ def optimize(
     settle_info: dict[str, Any] = {}
     stable: bool | None = None
     if settle_layout:
-        # Leave time for the final checks (about 3 ms a block, measured on mini and full).
-        end = start + time_limit - (0.5 + 0.003 * scene.required_blocks)
-        build, confirmation = confirm(problem, build, rng, phase.origin if phase else None, end)
+        end = start + time_limit - min(RESERVE_SHARE * time_limit, check_reserve(scene)
+                                       + coverage_reserve(scene))
+        origin = phase.origin if phase else None
+        build, confirmation = confirm(problem, build, rng, origin, end)
+        # Short of the count, the pocket fill (if it is among the strategies) goes on from the
+        # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
+        # come to rest lower, and what did not stand is out.
+        fill = next((s for s in strategies_run if isinstance(s, PocketFill)), None)
+        for _ in range(REFILLS if fill is not None else 0):
+            deadline = end - max(settle_reserve(scene), REFILL_SETTLES * confirmation.seconds)
+            if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
+                break
+            t0 = clock()
+            more = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
+            if len(more) <= len(build):
+                break
+            again, check = confirm(problem, more, rng, origin, end)
+            if len(again) <= len(build) or not check.stable:
+                break
+            phases.append({"strategy": "refill", "seconds": clock() - t0, "blocks": len(again),
+                           "porosity_percent": again.porosity.percent, "added": len(again) - len(build)})
+            build, confirmation = again, check
         settle_info = confirmation.to_dict()
         stable = confirmation.stable
-    layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed}})
-    report_ = check_layout(scene, layout.placed())
+    layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed,
+                                         **({"kept": len(keep)} if keep else {})}})
+    # The coverage is measured if the time left allows it (a scene far too long for its limit
+    # may not); without it the result says so.
+    left = start + time_limit - clock()
+    report_ = check_layout(scene, layout.placed(), with_coverage=left >= check_reserve(scene)
+                           + coverage_reserve(scene))
     return OptimizeResult(
         layout=layout,
         porosity_percent=report_.porosity_percent,
@@ -263,4 +362,31 @@ def optimize(
         gap=gap,
         outside_design_prism_m3=max(0.0, report_.blocks * scene.block.volume
                               - (1 - report_.porosity_percent / 100) * scene.design_volume),
+        coverage=report_.coverage.to_dict() if report_.coverage is not None else None,
+        kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
+        if keep else None,
     )
+
+
+def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:
+    """A build holding a partial layout's blocks where they are, in its order."""
+    ids = [p.id for p in keep]
+    if len(set(ids)) != len(ids):
+        raise InputError("the kept layout repeats block ids")
+    build = Build(scene)
+    for p in keep:
+        if p.type != scene.block_type:
+            raise InputError(f"kept block {p.id} is a {p.type!r}; the scene places {scene.block_type!r} "
+                             "(one block type a scene)")
+        build.keep(p.id, p.type, p.pose)
+    return build
+
+
+def kept_report(keep: Sequence[Placement], report: CheckReport, unstable: list[int]) -> dict[str, Any]:
+    """Which kept blocks collide, stick out or fail the settle (by their ids)."""
+    ids = {p.id for p in keep}
+    colliding = {i for c in report.collisions for i in (c.a, c.b) if i in ids}
+    return {"blocks": len(keep),
+            "colliding": sorted(colliding),
+            "out_of_tolerance": sorted(i for i, _ in report.out_of_tolerance if i in ids),
+            "unstable": sorted(i for i in unstable if i in ids)}

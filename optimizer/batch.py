@@ -150,7 +150,7 @@ def _reference(path: str, slices: int, layers: int) -> tuple[Any, Any, Any]:
     return cached
 
 
-def load_save(path: str, source: str, reference_layout: Any, reference_scene: Any, block: str = "shake-4t",
+def load_save(path: str, source: str, scene_ref: str, reference_scene: Any, block: str = "shake-4t",
               origin: tuple[float, float, float] = (0.0, 0.0, 0.0), scene_name: str | None = None
               ) -> tuple[Any, Any]:
     """A trainee's save as (Layout, Scene).
@@ -162,8 +162,9 @@ def load_save(path: str, source: str, reference_layout: Any, reference_scene: An
         ``auto`` tells the two apart by content: a ``format`` key means a
         ``shoha-layout/1`` file, blocks with ``{"x", "y", "z"}`` positions a
         simulator save.
-    reference_layout, reference_scene
-        A Unity save names no scene: it takes the reference's, or ``scene_name``.
+    scene_ref, reference_scene
+        A Unity save names no scene: it takes this one (a layout's ``scene``
+        reference, and the scene it loads to), or ``scene_name``.
     block, origin
         As in ``shoha convert``: the block type of saved blocks that name none,
         and the world position (m) of Unity's origin.
@@ -186,7 +187,7 @@ def load_save(path: str, source: str, reference_layout: Any, reference_scene: An
         data = read_json(path)
         layout = layout_from_dict(data, str(path), str(Path(path).resolve().parent))
     if source == "unity":
-        layout = read_unity_save(path, scene=reference_layout.scene, block=block, origin=origin)
+        layout = read_unity_save(path, scene=scene_ref, block=block, origin=origin)
         if scene_name is not None:
             return layout, load_scene(scene_name)
         return layout, reference_scene
@@ -227,7 +228,7 @@ def score_task(save: str, reference: str, source: str = "auto", block: str = "sh
                            "reference_sha256": sha256_file(reference)}
     try:
         ref_layout, ref_scene, ref = _reference(reference, slices, layers)
-        layout, scn = load_save(save, source, ref_layout, ref_scene, block, tuple(origin), scene)
+        layout, scn = load_save(save, source, ref_layout.scene, ref_scene, block, tuple(origin), scene)
         check_same_scene(scn, ref_scene, save)
         result = score(scn, layout.placed(), ref, seconds=seconds,
                        elapsed_s=layout.session_seconds()).to_dict()

@@ -53,7 +53,7 @@ def test_scene_info_and_export(tmp_path):
     assert d["required_blocks"] == 75 and abs(d["design_volume_m3"] - 293.3) < 1e-9
     d = _json(shoha("scene", "export", "mini", "--out", str(tmp_path / "m"), "--json"))
     meshes = [trimesh.load(p) for p in d["paths"]]
-    assert [Path(p).name for p in d["paths"]] == ["design.stl", "tolerance.stl"]
+    assert [Path(p).name for p in d["paths"]] == ["design.stl", "tolerance.stl", "foundation.stl"]
     assert all(m.is_watertight for m in meshes)
     assert abs(meshes[0].volume - 293.3) < 1e-3
 

@@ -7,22 +7,25 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import click
 
 from geometry.errors import InputError
 
-from .common import check_out, emit, json_option
+from .common import check_out, emit, json_option, parse_origin, save_options
 
 
 def _strategies(names: str) -> list:
     from optimizer.search.anneal import Annealing
     from optimizer.search.beam import BeamSearch
     from optimizer.search.cpsat import CpSat
+    from optimizer.search.fill import PocketFill
     from optimizer.search.physics import raised_check, stands
 
     table = {
         "beam": lambda: BeamSearch(accept=raised_check, judge=stands),
+        "fill": lambda: PocketFill(accept=raised_check),
         "anneal": lambda: Annealing(accept=raised_check),
         "cpsat": lambda: CpSat(),
     }
@@ -45,29 +48,49 @@ def _strategies(names: str) -> list:
               help="Wall-clock budget in seconds, kept to within 2 s; the best valid layout so far is "
                    "written. Default: 0.5 s a required block, at least 120 s and at most 1200 s "
                    "(mini: 120 s; full, 1005 blocks: 502.5 s).")
-@click.option("--strategy", "strategy_names", default="beam,anneal", show_default=True,
-              help="Strategies, run in order: beam, anneal, cpsat.")
+@click.option("--strategy", "strategy_names", default="beam,fill,anneal", show_default=True,
+              help="Strategies, run in order: beam, fill, anneal, cpsat.")
 @click.option("--bound", is_flag=True,
               help="Add the CP-SAT bound on the ground layer after the strategies (its gap in --json; "
                    "about a quarter of a default run on mini).")
 @click.option("--no-settle", is_flag=True, help="Skip the physics confirmation.")
+@click.option("--keep", "keep_path", default=None,
+              help="A partial layout to complete (a layout file or a simulator save): its blocks stay "
+                   "exactly where they are, and the rest is placed around and on them.")
+@save_options
 @json_option
 def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None, strategy_names: str,
-                 bound: bool, no_settle: bool, as_json: bool) -> None:
-    """Find a reference layout: valid blocks in crane order, near the target porosity."""
+                 bound: bool, no_settle: bool, keep_path: str | None, source: str, block_type: str,
+                 origin: str, as_json: bool) -> None:
+    """Find a reference layout: valid blocks in crane order, near the target porosity.
+
+    With --keep, complete a partial layout instead: a trainee's blocks so far,
+    or a layout cut short. The save options (--from, --block, --origin) say
+    how to read it.
+    """
     from geometry.layout import write_layout
     from geometry.scene import load_scene
     from optimizer.api import optimize
+    from optimizer.batch import load_save
+    from optimizer.score import check_same_scene
 
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit {time_limit}: must be a positive number of seconds")
     path = check_out(out)
     scene = load_scene(scene_name)
+    keep = []
+    if keep_path is not None:
+        if path.resolve() == Path(keep_path).resolve():
+            raise InputError(f"--out {out}: is the --keep file; write the completed layout elsewhere")
+        partial, partial_scene = load_save(keep_path, source, scene.reference(), scene, block_type,
+                                           parse_origin(origin))
+        check_same_scene(partial_scene, scene, keep_path)
+        keep = partial.blocks
     names = strategy_names + (",cpsat" if bound and "cpsat" not in strategy_names.split(",") else "")
     strategies = _strategies(names)
     with _Progress(scene.required_blocks, scene.target_porosity) as progress:
         result = optimize(scene, seed=seed, time_limit=time_limit, strategies=strategies,
-                          settle_layout=not no_settle, report=progress.update)
+                          settle_layout=not no_settle, report=progress.update, keep=keep)
     result.layout.scene = scene.reference(path.parent)
     write_layout(result.layout, path)
     result.path = str(path)

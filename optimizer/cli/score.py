@@ -44,7 +44,7 @@ def score_cmd(save: str, reference: str, source: str, block_type: str, origin: s
     html_path = check_out(html_out, (".html", ".htm")) if html_out is not None else None
     ref_layout = read_layout(reference)
     ref_scene = ref_layout.load_scene()
-    layout, scene = load_save(save, source, ref_layout, ref_scene, block_type, parse_origin(origin),
+    layout, scene = load_save(save, source, ref_layout.scene, ref_scene, block_type, parse_origin(origin),
                               scene_name)
     check_same_scene(scene, ref_scene, save)
     placed = layout.placed()

@@ -38,7 +38,7 @@ from .drop import Shape
 from .hangings import free, hanging_of
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
-from .sites import pattern_sites, rank_origins
+from .sites import kept_sites, pattern_sites, rank_origins
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
@@ -66,6 +66,17 @@ class BeamStats(Stats):
     candidates: int
     restarts: int
     origin: tuple[float, float]
+
+
+def gain(problem: Problem, c: Candidate) -> float:
+    """How much a candidate is worth: its volume in the design prism, in blocks, less its
+    rise above the ground in block heights (``HEIGHT_COST``), plus up to ``SUPPORT_GAIN``
+    for resting on the ground or on three blocks."""
+    h = problem.scene.block.height
+    rise = max(0.0, c.pose.position[2] - (-c.shape.lows.min()))
+    supports = len([s for s in c.support if s != GROUND]) + (3 if GROUND in c.support else 0)
+    return (c.inside / problem.scene.block.volume - HEIGHT_COST * rise / h
+            + SUPPORT_GAIN * min(supports, 3) / 3)
 
 
 @dataclass
@@ -175,13 +186,6 @@ class BeamSearch(Strategy):
         # Whether it comes to rest is asked later, of the candidates the beam keeps (_search).
         return build.lower(shape, x, y)
 
-    def _gain(self, problem: Problem, c: Candidate) -> float:
-        h = problem.scene.block.height
-        rise = max(0.0, c.pose.position[2] - (-c.shape.lows.min()))
-        supports = len([s for s in c.support if s != GROUND]) + (3 if GROUND in c.support else 0)
-        return (c.inside / problem.scene.block.volume - HEIGHT_COST * rise / h
-                + SUPPORT_GAIN * min(supports, 3) / 3)
-
     def _proposals(self, problem: Problem, beam: _Beam, sites: list, shapes: ShapeCache,
                    rng: np.random.Generator) -> tuple[list[tuple[float, Candidate, int | None]], set[int]]:
         """Candidates for one partial layout, and the pending sites where nothing fits (dead)."""
@@ -194,7 +198,7 @@ class BeamSearch(Strategy):
             c = (self._lower(problem, beam.build, shapes.hung(fam, yaw), x, y)
                  if not beam.tried(i) else None)
             if c is not None:
-                out.append((self._gain(problem, c), c, i))
+                out.append((gain(problem, c), c, i))
                 continue
             fitted = False
             # The lattice is tuned to its limit: jitter a site only where it does not fit as
@@ -204,7 +208,7 @@ class BeamSearch(Strategy):
                 vyaw = yaw + rng.normal(0, self.jitter_yaw)
                 c = self._lower(problem, beam.build, shapes.hung(fam, vyaw), vx, vy)
                 if c is not None:
-                    out.append((self._gain(problem, c), c, i))
+                    out.append((gain(problem, c), c, i))
                     fitted = True
             if not fitted:
                 dead.add(i)
@@ -220,7 +224,7 @@ class BeamSearch(Strategy):
             x, y = rng.uniform(xr[0], xr[1]), rng.uniform(yr[0], yr[1])
             c = self._lower(problem, beam.build, shapes.get(q), float(x), float(y))
             if c is not None:
-                out.append((self._gain(problem, c), c, None))
+                out.append((gain(problem, c), c, None))
         return out, dead
 
     # --- search ---------------------------------------------------------------------
@@ -270,7 +274,7 @@ class BeamSearch(Strategy):
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:
         """One beam search from one pattern origin; returns the best build and candidates tried."""
         sites = pattern_sites(problem, origin)
-        beams = [_Beam(start, 0.0, frozenset())]
+        beams = [_Beam(start, 0.0, kept_sites(problem, start, sites))]
         tried = 0
         while any(not b.done for b in beams) and problem.now() < end:
             expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []

@@ -50,12 +50,17 @@ class Candidate:
         What it rests on (``GROUND`` for the foundation).
     inside : float, m^3
         Its volume inside the design prism.
+    loose : bool
+        Its first contact sticks out of the tolerance zone: it is valid only
+        where it comes to rest once let go (``Build.lower(..., loose=True)``),
+        and only a physics check may place it.
     """
 
     shape: Shape
     pose: Pose
     support: tuple[int, ...]
     inside: float
+    loose: bool = False
 
 
 class Build:
@@ -79,6 +84,9 @@ class Build:
         self.supports: dict[int, tuple[int, ...]] = {}
         self.carried: dict[int, set[int]] = {}
         self.next_key = 0
+        #: Blocks kept where a partial layout had them (``optimize(keep=...)``): by key, their id
+        #: and type in that layout. No strategy moves or removes them.
+        self.kept: dict[int, tuple[int, str]] = {}
         self.zone = scene.tolerance.polytope
         self._design = scene.design.polytope
         # The zone's faces a rising block can only cross further: slopes, crest, ends.
@@ -99,40 +107,47 @@ class Build:
         other.poses = dict(self.poses)
         other.supports = dict(self.supports)
         other.carried = {k: set(v) for k, v in self.carried.items()}
+        other.kept = dict(self.kept)
         return other
 
     # --- proposing ---------------------------------------------------------------
 
-    def lower(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset()
-              ) -> Candidate | None:
+    def lower(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset(),
+              loose: bool = False) -> Candidate | None:
         """Lower ``shape`` at (x, y) until it touches; None if it ends out of tolerance.
 
         The exact first-contact height comes from the drop world; FCL then
         confirms that the resting block penetrates no neighbour. A block only
         rests at or above the ground, so one that already crosses a face of
         the zone's ceiling at ground height is out without a drop (about half
-        the drops of a pattern pass on ``mini`` and ``tetrapod``).
+        the drops of a pattern pass on ``mini`` and ``tetrapod``). With
+        ``loose``, a first contact out of the zone (on a neighbour's shoulder)
+        is returned all the same, marked ``loose``: let go, it may slide into
+        the pocket beside.
         """
         normals, offsets = self._ceiling
         ground = self.drops.ground_height(shape, x, y)
         low = Pose([x, y, ground], shape.quaternion).apply(self.block.vertices)
-        if not np.all(low @ normals.T <= offsets + tol.distance):
+        if not loose and not np.all(low @ normals.T <= offsets + tol.distance):
             return None
         z, support, on_ground = self.drops.drop(shape, x, y, exclude, ground)
         pose = Pose([x, y, z], shape.quaternion)
         world = pose.apply(self.block.vertices)
         # The tolerance zone is convex: the block is inside iff its vertices are.
-        if not self.zone.contains(world).all():
+        out = not self.zone.contains(world).all()
+        if out and not loose:
             return None
         if self.collide.query(self.block, pose, exclude=exclude, threshold=-1.0, first=True):
             return None  # pragma: no cover - the exact drop leaves a gap; FCL is the referee
         keys = tuple(support) + ((GROUND,) if on_ground else ())
-        return Candidate(shape, pose, keys, volume_inside(self.block, pose, self._design))
+        return Candidate(shape, pose, keys, volume_inside(self.block, pose, self._design), out)
 
     # --- changing ----------------------------------------------------------------
 
     def place(self, c: Candidate) -> int:
         """Add a candidate as the next block in crane order; returns its key."""
+        if c.loose:
+            raise ValueError("a loose candidate is placed only where it comes to rest")
         key = self.next_key
         self.next_key += 1
         self.order.append(key)
@@ -151,8 +166,64 @@ class Build:
         self.collide.add(key, self.block, c.pose)
         self.porosity.add(key, self.block, c.pose)
 
+    def keep(self, block_id: int, block_type: str, pose: Pose) -> int:
+        """Add a block of a partial layout where it is, fixed: first in crane order, never moved.
+
+        It rests on the blocks and the ground it touches; one that touches
+        nothing, collides or sticks out of the zone is kept all the same (the
+        caller reports it).
+        """
+        key = self.place(self._resting(pose, anyway=True))
+        self.kept[key] = (block_id, block_type)
+        return key
+
+    def settled(self, poses: dict[int, Pose]) -> Build:
+        """A new build of the same blocks where a settle left them (``poses`` by key).
+
+        Kept blocks stay as they are, first. The others are placed in crane
+        order again, each at its settled pose, resting on what it touches;
+        a block that now leans on one placed after it waits until that one
+        is in (a settle can shift a block onto a later neighbour). Keys are
+        new: ``0..n-1`` in the new order. Blocks the settle moved out of the
+        zone, or into a neighbour deeper than the contact tolerance, are
+        placed all the same: the caller checks them.
+        """
+        other = Build(self.scene)
+        for k in self.order:
+            if k in self.kept:
+                other.keep(*self.kept[k], self.poses[k])
+        waiting = [k for k in self.order if k not in self.kept]
+        while waiting:
+            later = []
+            for k in waiting:
+                c = other._resting(poses.get(k, self.poses[k]))
+                if c is None:
+                    later.append(k)
+                else:
+                    other.place(c)
+            if len(later) == len(waiting):  # nothing it touches is ever placed first: it goes as it is
+                for k in later:
+                    other.place(other._resting(poses.get(k, self.poses[k]), anyway=True))
+                break
+            waiting = later
+        return other
+
+    def _resting(self, pose: Pose, anyway: bool = False) -> Candidate | None:
+        """A block at ``pose`` as a candidate resting on what it touches, or None if it touches
+        nothing placed and not the ground (unless ``anyway``)."""
+        touching = tuple(sorted(k for k, _ in self.collide.query(self.block, pose, threshold=-1.0)))
+        world = pose.apply(self.block.vertices)
+        ground = (world[:, 2] - self.scene.foundation.height_at(world[:, :2])).min() <= tol.contact_gap
+        support = touching + ((GROUND,) if ground or (anyway and not touching) else ())
+        if not support:
+            return None
+        return Candidate(Shape.of(self.block, pose.quaternion), pose, support,
+                         volume_inside(self.block, pose, self._design))
+
     def remove(self, key: int) -> None:
-        """Take a block out; it must carry nothing."""
+        """Take a block out; it must carry nothing, and not be a kept one."""
+        if key in self.kept:
+            raise ValueError(f"block {self.kept[key][0]} is kept: it is not moved")
         if self.carried[key]:
             raise ValueError(f"block {key} carries {sorted(self.carried[key])}")
         self._delete(key)
@@ -176,6 +247,8 @@ class Build:
         carried = self.carried[key]
         if carried:
             raise ValueError(f"block {key} carries {sorted(carried)}")
+        if key in self.kept:
+            raise ValueError(f"block {self.kept[key][0]} is kept: it is not moved")
         self._delete(key)
         self._insert(key, c)
 
@@ -188,8 +261,8 @@ class Build:
     # --- reading ---------------------------------------------------------------------
 
     def free_keys(self) -> list[int]:
-        """Blocks with nothing resting on them: the ones that may move."""
-        return [k for k in self.order if not self.carried[k]]
+        """Blocks with nothing resting on them, and not kept: the ones that may move."""
+        return [k for k in self.order if not self.carried[k] and k not in self.kept]
 
     @property
     def inside_volume(self) -> float:
@@ -199,13 +272,20 @@ class Build:
         return [(k, self.block, self.poses[k]) for k in self.order]
 
     def layout(self, extra: dict | None = None) -> Layout:
-        """The build as a layout: ids 0..n-1 in crane order.
+        """The build as a layout, in crane order: kept blocks with their own ids, then ids counting on.
 
-        Its ``scene`` is the scene's built-in name or absolute file path;
-        :func:`geometry.layout.write_layout` callers that know the output
-        folder make it relative (``Scene.reference``).
+        Without kept blocks the ids are 0..n-1. Its ``scene`` is the scene's
+        built-in name or absolute file path; :func:`geometry.layout.write_layout`
+        callers that know the output folder make it relative (``Scene.reference``).
         """
-        blocks = [Placement(i, self.scene.block_type, self.poses[k]) for i, k in enumerate(self.order)]
+        next_id = 1 + max((i for i, _ in self.kept.values()), default=-1)
+        blocks = []
+        for k in self.order:
+            if k in self.kept:
+                block_id, block_type = self.kept[k]
+            else:
+                block_id, block_type, next_id = next_id, self.scene.block_type, next_id + 1
+            blocks.append(Placement(block_id, block_type, self.poses[k]))
         return Layout(self.scene.reference(), blocks, dict(extra or {}), self.scene.base_dir)
 
     def heights(self) -> np.ndarray:

@@ -222,7 +222,8 @@ class CpSat(Strategy):
         pattern's ground sites (with jitter) from the best-ranked origins, so
         the optimum is at least the input's ground layer, and the bound says
         how far above it the best ground layer of this set can be. A build
-        that already has blocks resting on its ground layer is returned
+        with kept blocks (``Build.keep``), or that already has blocks resting
+        on its ground layer, is returned
         unchanged (its upper layers stand on that ground layer); the bound is
         recorded in :meth:`stats`.
         """
@@ -257,7 +258,7 @@ class CpSat(Strategy):
         chosen, objective, bound, status = self.solve([v for _, _, v in cands], conflicts, limit,
                                                       int(rng.integers(2**31)), fixed)
         placed = 0
-        if whole and upper == 0 and objective > heuristic + tol.objective_volume:
+        if whole and upper == 0 and not start.kept and objective > heuristic + tol.objective_volume:
             # Lay the solved ground layer, blockers first, each lowered to confirm it.
             start = Build(problem.scene)
             for i in _topological(chosen, before):

@@ -23,8 +23,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from geometry.clip import volume_inside
+from geometry.collision import collisions
 from geometry.constants import tol
-from settle import Thresholds, settle
+from settle import SettleResult, Thresholds, settle
 
 from .beam import BeamSearch
 from .build import GROUND, Build, Candidate
@@ -47,7 +48,7 @@ def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candid
     A candidate lowered onto a flat foundation stands on one of its rest
     poses, and is kept as it is.
     """
-    if candidate.support == (GROUND,) and problem.scene.foundation.kind == "flat":
+    if candidate.support == (GROUND,) and problem.scene.foundation.kind == "flat" and not candidate.loose:
         return candidate
     return settle_in(problem, build, candidate)
 
@@ -56,7 +57,8 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
     """The candidate where it comes to rest when let go among fixed neighbours, or None.
 
     Returns the candidate itself if it stays within :data:`LOCAL_THRESHOLDS`
-    of where it was lowered; otherwise the block at rest where it ends, if it
+    of where it was lowered (and is not ``loose``: where it was lowered is
+    out of the zone); otherwise the block at rest where it ends, if it
     comes to rest within :data:`LOCAL_SECONDS`, whole inside the tolerance
     zone, pressing no block deeper than ``tol.contact_depth``, and resting on
     something; otherwise None.
@@ -68,7 +70,7 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
     result = settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
                     thresholds=LOCAL_THRESHOLDS)
     if result.stable:
-        return candidate
+        return None if candidate.loose else candidate
     if not result.at_rest:
         return None
     pose = result.poses[key]
@@ -120,6 +122,9 @@ class Confirmation:
         Of that settle.
     unstable : list of int
         Crane-order indices of the blocks that failed it (empty when stable).
+    adopted : int
+        Times the layout was taken where a failed settle left it (before any
+        repair of that round).
     rounds : int
         Repair rounds run.
     repaired : int
@@ -131,6 +136,7 @@ class Confirmation:
     max_displacement_m: float
     max_rotation_deg: float
     unstable: list[int]
+    adopted: int
     rounds: int
     repaired: int
     seconds: float
@@ -138,7 +144,29 @@ class Confirmation:
     def to_dict(self) -> dict:
         return {"stable": self.stable, "max_displacement_m": self.max_displacement_m,
                 "max_rotation_deg": self.max_rotation_deg, "unstable": list(self.unstable),
-                "rounds": self.rounds, "repaired": self.repaired, "seconds": self.seconds}
+                "adopted": self.adopted, "rounds": self.rounds, "repaired": self.repaired,
+                "seconds": self.seconds}
+
+
+def settled_layout(problem: Problem, build: Build, result: SettleResult, rng: np.random.Generator
+                   ) -> tuple[Build, SettleResult]:
+    """The build where a settle left it, less the blocks that ended invalid; and its own settle.
+
+    Kept blocks are held where they are (a settle that moved them is run again
+    with them fixed). A block that ended out of the tolerance zone, or
+    pressed into a neighbour deeper than the contact tolerance, is taken out
+    with what rests on it.
+    """
+    free = [k for k in build.order if k not in build.kept]
+    if build.kept:
+        result = settle(problem.scene, build.placed(), seed=int(rng.integers(2**31)), movable=free)
+    after = build.settled(result.poses)
+    bad = {k for k in after.order if k not in after.kept
+           and not after.zone.contains(after.poses[k].apply(after.block.vertices)).all()}
+    bad |= {k for c in collisions(after.placed()) for k in (c.a, c.b) if k not in after.kept}
+    for k in sorted(carried_closure(after, bad) - set(after.kept), key=after.order.index, reverse=True):
+        after.remove(k)
+    return after, settle(problem.scene, after.placed(), seed=int(rng.integers(2**31)))
 
 
 def confirm(problem: Problem, build: Build, rng: np.random.Generator,
@@ -146,28 +174,45 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             ) -> tuple[Build, Confirmation]:
     """Settle a build; repair and settle again while blocks fail.
 
-    Each round takes the failed blocks out, with every block resting on
+    A failed settle is first taken at its word: the layout where it left
+    the blocks (:func:`settled_layout`), settled again. If that fails too,
+    the round takes the failed blocks out, with every block resting on
     them. If a repair and one more settle fit before ``end`` (a
     ``problem.now()`` value; a repair gets at most half the time left
     after reserving one settle), the beam search places blocks again under
     the local check; otherwise the layout stays short of them. The rounds
     end when the settle verdict is stable, so what is returned always
     stands, even if it is smaller (a settled empty layout is trivially
-    stable).
+    stable), unless the build has kept blocks (``Build.keep``) that fail:
+    those stay, and the verdict says so.
 
     Returns the build and its :class:`Confirmation`.
     """
     start = problem.now()
-    repaired = 0
-    rounds = 0
+    repaired = rounds = adopted = 0
     while True:
         t = problem.now()
         result = settle(problem.scene, build.placed(), seed=int(rng.integers(2**31)))
         cost = problem.now() - t
         if result.stable or not len(build):
             break
+        # Kept blocks (a partial layout's) are never taken out: if only they fail, the
+        # verdict stands as it is and the caller reports them.
+        failed = carried_closure(build, set(result.unstable_ids)) - set(build.kept)
+        if not failed:
+            break
+        left = (end if end is not None else problem.deadline) - problem.now() - cost
+        if adopted < ROUNDS and left > 3 * cost:
+            # First the layout where the settle left it: blocks that crept or slid have come
+            # to rest, and the layout often stands so, with every block in it.
+            adopted += 1
+            build, result = settled_layout(problem, build, result, rng)
+            if result.stable:
+                break
+            failed = carried_closure(build, set(result.unstable_ids)) - set(build.kept)
+            if not failed:
+                break
         rounds += 1
-        failed = carried_closure(build, set(result.unstable_ids))
         smaller = build.copy()
         for k in sorted(failed, key=build.order.index, reverse=True):
             smaller.remove(k)
@@ -182,6 +227,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             build = smaller  # out of rounds or time: keep what stands
     rank = {k: i for i, k in enumerate(build.order)}
     return build, Confirmation(
+        adopted=adopted,
         stable=bool(result.stable),
         max_displacement_m=result.max_displacement_m,
         max_rotation_deg=result.max_rotation_deg,

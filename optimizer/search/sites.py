@@ -9,6 +9,7 @@ ranked first by a quick pass of the pattern alone (:func:`rank_origins`).
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from .build import Build
 from .problem import Problem
@@ -19,25 +20,25 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
                  probes: int, stop: float, scans: int = 0, n: int = 16) -> list[tuple[float, float]]:
     """Pattern origins, best first: by the volume their sites alone place in the design prism.
 
-    First ``probes`` origins, (0, 0) and seeded random ones over one lattice
-    cell. Then ``scans`` line scans, taken in turn along the crest (y) and
-    across it (x), each through the best origin so far: ``n`` origins along
-    the crest, or ``n / 2`` across it, spaced evenly over one lattice period
-    with a seeded offset. The count a pattern places is a step function of
-    its origin, nearly a sum of one step in x (how many rows fit between the
-    slopes) and one in y (how many fit between the ends): on ``tetrapod`` it
-    ranges from 60 to 81 blocks, and the steps that reach 81 are about 0.3 m
-    wide in x and 0.16 m in y, against scan spacings of 0.23 m and 0.13 m at
-    ``n = 16``: a scan cannot step over them, where random probes often
-    miss them. Trials stop at ``stop`` (``problem.now()``). A trial the
-    deadline cuts short is dropped, unless it is the only one: then the
-    origin it drew is all there is to rank (a budget too short for one pass
-    over a long scene).
+    First ``probes`` origins, (0, 0) and seeded random ones over one lattice cell;
+    a build with kept blocks adds first the origins that lay the pattern through
+    them (:func:`kept_origins`). Then ``scans`` line scans, taken in turn along
+    the crest (y) and across it (x), each through the best origin so far: ``n``
+    origins along the crest, or ``n / 2`` across it, spaced evenly over one
+    lattice period with a seeded offset. The count a pattern places is a step
+    function of its origin, nearly a sum of one step in x (how many rows fit
+    between the slopes) and one in y (how many fit between the ends): on
+    ``tetrapod`` it ranges from 60 to 81 blocks, and the steps that reach 81 are
+    about 0.3 m wide in x and 0.16 m in y, against scan spacings of 0.23 m and
+    0.13 m at ``n = 16``: a scan cannot step over them, where random probes often
+    miss them. Trials stop at ``stop`` (``problem.now()``). A trial the deadline
+    cuts short is dropped, unless it is the only one: then the origin it drew is
+    all there is to rank (a budget too short for one pass over a long scene).
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
-    trials = [(0.0, 0.0)] + [(float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p)))
-                             for _ in range(probes - 1)]
+    trials = kept_origins(problem, start) + [(0.0, 0.0)] + [
+        (float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p))) for _ in range(probes - 1)]
     scored: list[tuple[float, int, tuple[float, float]]] = []
 
     def trial(origin: tuple[float, float]) -> None:
@@ -69,9 +70,13 @@ def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tup
     up to the required count or until ``stop`` (``problem.now()``): the quick pass
     that ranks an origin."""
     b = start.copy()
-    for fam, yaw, x, y in pattern_sites(problem, origin):
+    sites = pattern_sites(problem, origin)
+    taken = kept_sites(problem, start, sites)
+    for i, (fam, yaw, x, y) in enumerate(sites):
         if len(b) >= problem.required or problem.now() > stop:
             break
+        if i in taken:
+            continue
         c = b.lower(shapes.hung(fam, yaw), x, y)
         if c is not None:
             b.place(c)
@@ -98,3 +103,75 @@ def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[s
     for n in range(passes):
         sites += lat.sites(xr, yr, origin) if n % 2 == 0 else upper.sites(xr, yr, shifted)
     return sites
+
+
+#: A kept block within this share of the lattice's smaller period of a site, across, stands
+#: on that site (the pattern's own blocks are on their sites to within the beam's jitter).
+SITE_MATCH = 0.2
+#: Sites this many bounding radii of a kept block off the pattern are left out.
+OFF_PATTERN = 1.0
+#: Kept blocks that propose origins (each proposes two): the rest only count.
+PROPOSERS = 16
+
+
+def kept_origins(problem: Problem, build: Build, most: int = 3) -> list[tuple[float, float]]:
+    """Origins that lay the pattern through the most kept blocks (``Build.keep``), best first.
+
+    A partial layout laid from the pattern (a reference cut short) is
+    completed along its own rows: each kept block proposes the origin that
+    puts a site of either family under it, and an origin counts the kept
+    blocks it puts a site under. Origins under fewer than two are left out
+    (kept blocks off any pattern, such as a trainee's, propose none).
+    """
+    lat = problem.lattice
+    kept = np.array([build.poses[k].position[:2] for k in build.kept]).reshape(-1, 2)
+    if len(kept) < 2:
+        return []
+    proposals = []
+    # The first blocks in crane order propose (a pattern's first ones are on its sites).
+    for x, y in kept[:PROPOSERS]:
+        for du, dv in ((0.0, 0.0), (lat.u, lat.v)):
+            j = np.floor((x - du) / lat.w)
+            proposals.append((x - du - j * lat.w, (y - dv - j * lat.q) % lat.p))
+    counted = sorted(((-_under(problem, o, kept), i, o) for i, o in enumerate(proposals)))
+    out: list[tuple[float, float]] = []
+    for minus, _, o in counted:
+        if -minus < 2 or len(out) == most:
+            break
+        if all(np.hypot(o[0] - p[0], o[1] - p[1]) > SITE_MATCH * min(lat.w, lat.p) for p in out):
+            out.append((float(o[0]), float(o[1])))
+    return out
+
+
+def _under(problem: Problem, origin: tuple[float, float], kept: np.ndarray) -> int:
+    """How many of ``kept`` (x, y) stand on a site of the pattern laid from ``origin``."""
+    sites = np.array([(x, y) for _, _, x, y in pattern_sites(problem, origin)]).reshape(-1, 2)
+    if not len(sites):
+        return 0
+    d, _ = cKDTree(sites).query(kept)
+    return int((d <= SITE_MATCH * min(problem.lattice.w, problem.lattice.p)).sum())
+
+
+def kept_sites(problem: Problem, build: Build, sites: list[tuple[str, float, float, float]]
+               ) -> frozenset[int]:
+    """Indices of ``sites`` that kept blocks stand on or in the way of.
+
+    Each kept block, in crane order, takes the first free site within
+    ``SITE_MATCH`` of it across. One off the pattern (a trainee's) takes
+    every site within ``OFF_PATTERN`` bounding radii of it: a block lowered
+    there would land on its shoulder, and the pockets around it are left to
+    the fill drops, which go where blocks settle.
+    """
+    if not build.kept or not sites:
+        return frozenset()
+    tree = cKDTree(np.array([(x, y) for _, _, x, y in sites]))
+    reach = SITE_MATCH * min(problem.lattice.w, problem.lattice.p)
+    taken: set[int] = set()
+    for k in build.kept:
+        xy = build.poses[k].position[:2]
+        free = [i for i in sorted(tree.query_ball_point(xy, reach)) if i not in taken]
+        if free:
+            taken.add(free[0])
+        else:
+            taken.update(tree.query_ball_point(xy, OFF_PATTERN * build.block.bounding_radius))
+    return frozenset(taken)

@@ -1,0 +1,127 @@
+"""Pocket fill: where the pattern leaves a layout short, blocks go where they settle.
+
+The beam search lays the placement pattern; around blocks off any pattern (a
+kept trainee's layout, ``optimize(keep=...)``), on a rough underlayer, or
+where a mesh block's tuned pattern fits the section badly, the pattern's sites
+run out before the count is reached. This step then adds one block at a time,
+the way a crane operator fills the pockets that are left:
+
+1. draw ``draws`` drops at random over the fill window, each in a random
+   hanging at a random yaw, and lower each until it touches. A drop whose
+   first contact sticks out of the zone (on a neighbour's shoulder) is kept
+   as a *loose* candidate;
+2. rank them by the beam's :func:`optimizer.search.beam.gain` (volume in the
+   design prism, low, well supported);
+3. let the best go, one after the other, among their fixed neighbours
+   (``accept``, :func:`optimizer.search.physics.settle_in`): the first that
+   comes to rest inside the zone is placed where it rests. A loose candidate
+   is valid only if it slid into a pocket.
+
+A round in which none of the first ``checks`` comes to rest is fruitless; the
+next draws twice as many. ``patience`` fruitless rounds in a row end the step.
+
+Measured with seed 1 on 2 cores: keeping the first 30 blocks of a random
+layout (``optimizer.search.scatter``) on ``mini``, the beam reached 47 blocks
+and this step 55; on ``mini`` with a rough underlayer, 66 and 70. The
+layout's confirming settle then took out what did not stand in the whole
+layout (47 and 63 stayed): blocks that come to rest among fixed neighbours
+do not all stand once every block is free. The step is kept for the count it
+adds before that settle, which the repair starts from.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .beam import gain
+from .build import Build, Candidate, fill_window
+from .hangings import free, hanging_of
+from .problem import Phase, Problem, Stats, Strategy
+from .shapes import ShapeCache
+
+
+@dataclass(frozen=True)
+class FillStats(Stats):
+    """Figures of a pocket fill.
+
+    Attributes
+    ----------
+    placed : int
+        Blocks it added.
+    drops : int
+        Blocks lowered.
+    checks : int
+        Candidates let go (a physics run each).
+    """
+
+    placed: int = 0
+    drops: int = 0
+    checks: int = 0
+
+
+class PocketFill(Strategy):
+    """Add blocks one at a time where they settle, until the count or the time is reached.
+
+    Parameters
+    ----------
+    draws : int
+        Drops lowered per round (doubled after each fruitless round).
+    checks : int
+        Best candidates let go per round before it counts as fruitless.
+    patience : int
+        Fruitless rounds in a row that end the step.
+    accept : callable
+        ``accept(problem, build, candidate) -> Candidate | None``, as the beam
+        search's; it must handle loose candidates
+        (:func:`optimizer.search.physics.raised_check` does).
+    """
+
+    name = "fill"
+
+    def __init__(self, accept: Callable[[Problem, Build, Candidate], Candidate | None],
+                 draws: int = 200, checks: int = 30, patience: int = 4):
+        self.accept = accept
+        self.draws = draws
+        self.checks = checks
+        self.patience = patience
+
+    def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
+        build = previous.build.copy() if previous is not None else Build(problem.scene)
+        origin = previous.origin if previous is not None else None
+        shapes = ShapeCache(problem.scene.block)
+        xr, yr = fill_window(problem.scene)
+        placed = drops = checks = fruitless = 0
+        while len(build) < problem.required and fruitless < self.patience and problem.time_left() > 0:
+            cands = []
+            # The drops may take half the time left: the other half is for letting them go.
+            stop = problem.now() + 0.5 * problem.time_left()
+            for _ in range(self.draws * 2 ** fruitless):
+                if problem.now() > stop:
+                    break
+                fam = problem.families[int(rng.integers(len(problem.families)))]
+                q = (free(rng) if fam == "free"
+                     else hanging_of(shapes.block, fam, float(rng.uniform(0, 2 * np.pi))))
+                c = build.lower(shapes.get(q), float(rng.uniform(*xr)), float(rng.uniform(*yr)), loose=True)
+                drops += 1
+                if c is not None:
+                    cands.append((-gain(problem, c), len(cands), c))
+            cands.sort(key=lambda t: t[:2])
+            rested = None
+            for _, _, c in cands[: self.checks]:
+                if problem.time_left() <= 0:
+                    break
+                checks += 1
+                rested = self.accept(problem, build, c)
+                if rested is not None:
+                    break
+            if rested is None:
+                fruitless += 1
+                continue
+            build.place(rested)
+            placed += 1
+            fruitless = 0
+            problem.tell(self.name, build, f"{len(build)} placed")
+        return Phase(build, FillStats(placed, drops, checks), origin)

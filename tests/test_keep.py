@@ -1,0 +1,138 @@
+"""``shoha optimize --keep``: a layout already begun, completed around its blocks (issue 24)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from geometry.layout import Layout, Placement, read_layout, write_layout
+from geometry.pose import Pose
+from geometry.tolerance import out_of_tolerance
+from optimizer.api import optimize
+from tests.conftest import shoha
+from tests.test_score_cli import REFERENCE, to_unity_save
+
+
+def _json(result):
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)
+
+
+@pytest.fixture(scope="module")
+def partial(tmp_path_factory):
+    """The first 30 blocks of the seed-1 mini reference, as the layout file a survey writes."""
+    ref = read_layout(REFERENCE)
+    path = tmp_path_factory.mktemp("keep") / "partial.json"
+    write_layout(Layout("mini", ref.blocks[:30]), path)
+    return path
+
+
+@pytest.mark.parametrize("how", ["layout", "unity"])
+def test_kept_blocks_are_written_byte_for_byte(tmp_path, partial, how):
+    """The completed layout starts with the kept blocks: same ids, same numbers, to the last bit."""
+    keep = partial
+    if how == "unity":
+        keep = tmp_path / "save.json"
+        keep.write_text(json.dumps(to_unity_save(read_layout(partial), (0.0, 0.0, 0.0))))
+    out = tmp_path / "out.json"
+    d = _json(shoha("optimize", "mini", "--keep", str(keep), "--out", str(out), "--seed", "1",
+                    "--time-limit", "90", "--json"))
+    written = json.loads(out.read_text())["blocks"]
+    given = json.loads(partial.read_text())["blocks"]
+    assert [json.dumps(b, sort_keys=True) for b in written[:30]] == [json.dumps(b, sort_keys=True)
+                                                                     for b in given]
+    ids = [b["id"] for b in written]
+    assert len(set(ids)) == len(ids) and ids[30:] == list(range(30, len(ids)))
+    assert d["kept"] == {"blocks": 30, "colliding": [], "out_of_tolerance": [], "unstable": []}
+    # Everything placed around them is valid.
+    assert d["blocks"] > 30 and d["collisions"] == 0 and d["out_of_tolerance"] == 0 and d["stable"]
+
+
+def test_invalid_kept_blocks_stay_and_are_reported(mini):
+    """A kept pair that interpenetrates and a kept block past the slope stay where they are,
+    named in ``kept``; no block placed around them collides or sticks out."""
+    ref = read_layout(REFERENCE).blocks
+    ground = [p for p in ref if p.pose.position[2] < 0.5 * mini.block.height]
+    a = ground[0]
+    twin = Placement(100, "shake-4t", Pose(a.pose.position + [0.3, 0.0, 0.0], a.pose.quaternion))
+    zone = mini.tolerance
+    outer = max(ground, key=lambda p: p.pose.position[0])
+    x, y, z = outer.pose.position
+    out = Placement(101, "shake-4t", Pose([zone.bottom_half_width - 0.2, y, z], outer.pose.quaternion))
+    assert out_of_tolerance([(101, mini.block, out.pose)], zone)  # the case is what it says
+    keep = [a, twin, out]
+    result = optimize(mini, seed=2, time_limit=40, keep=keep)
+    kept = result.kept
+    assert kept["blocks"] == 3
+    assert set(kept["colliding"]) == {a.id, 100}
+    assert kept["out_of_tolerance"] == [101]
+    placed = result.layout.blocks
+    assert [(p.id, p.pose.position.tobytes(), p.pose.quaternion.tobytes()) for p in placed[:3]] == [
+        (p.id, p.pose.position.tobytes(), p.pose.quaternion.tobytes()) for p in keep]
+    assert len(placed) > 3
+    assert not result.valid
+    check = result.to_dict()
+    kept_ids = {p.id for p in keep}
+    from geometry.checks import check_layout
+
+    report = check_layout(mini, result.layout.placed(), with_coverage=False)
+    assert {i for c in report.collisions for i in (c.a, c.b)} <= kept_ids
+    assert {i for i, _ in report.out_of_tolerance} <= kept_ids
+    assert check["collisions"] == len(report.collisions)
+
+
+def test_keep_input_errors(tmp_path, partial):
+    out = tmp_path / "out.json"
+    tetrapod = tmp_path / "tetrapod.json"
+    layout = read_layout(partial)
+    tetrapods = [Placement(p.id, "tetrapod", p.pose) for p in layout.blocks[:5]]
+    write_layout(Layout("tetrapod", tetrapods), tetrapod)
+    wrong_type = tmp_path / "wrong-type.json"
+    write_layout(Layout("mini", tetrapods), wrong_type)
+    repeated = tmp_path / "repeated.json"
+    d = json.loads(partial.read_text())
+    d["blocks"][1]["id"] = d["blocks"][0]["id"]
+    repeated.write_text(json.dumps(d))
+    nan = tmp_path / "nan.json"
+    nan.write_text(partial.read_text().replace(str(d["blocks"][2]["position"][0]), "NaN", 1))
+    broken = tmp_path / "broken.json"
+    broken.write_text(partial.read_text()[:-20])
+    cases = {
+        "another scene": (tetrapod, out),
+        "another block type": (wrong_type, out),
+        "repeated ids": (repeated, out),
+        "NaN": (nan, out),
+        "malformed JSON": (broken, out),
+        "missing": (tmp_path / "none.json", out),
+        "--out is the --keep file": (partial, partial),
+    }
+    before = partial.read_bytes()
+    for what, (keep, target) in cases.items():
+        r = shoha("optimize", "mini", "--keep", str(keep), "--out", str(target), "--time-limit", "5")
+        assert r.returncode == 2, (what, r.stdout, r.stderr)
+        assert len(r.stderr.strip().splitlines()) == 1, (what, r.stderr)
+        assert not out.exists(), what
+    assert partial.read_bytes() == before
+
+
+def test_kept_layout_laid_from_the_pattern_is_continued_along_it(mini, partial):
+    """The origin that lays the pattern through the kept blocks is found, and the sites they
+    stand on are not offered again."""
+    from optimizer.api import kept_build
+    from optimizer.search.patterns import lattice_for
+    from optimizer.search.problem import Problem
+    from optimizer.search.sites import kept_origins, kept_sites, pattern_sites
+
+    build = kept_build(mini, read_layout(partial).blocks)
+    problem = Problem(mini, mini.required_blocks, mini.target_porosity, lattice_for(mini.block, "shake-4t"))
+    origins = kept_origins(problem, build)
+    assert origins
+    sites = pattern_sites(problem, origins[0])
+    taken = kept_sites(problem, build, sites)
+    # Every kept block of the reference's first pass stands on a site of that origin.
+    assert len(taken) == 30
+    xy = np.array([(x, y) for _, _, x, y in sites])[sorted(taken)]
+    kept_xy = np.array([build.poses[k].position[:2] for k in build.kept])
+    assert np.abs(np.sort(xy, axis=0) - np.sort(kept_xy, axis=0)).max() < 0.5
