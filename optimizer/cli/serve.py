@@ -1,0 +1,67 @@
+"""``shoha serve``: the HTTP + WebSocket service the simulator calls after each block (docs/serve.md)."""
+
+from __future__ import annotations
+
+import math
+
+import click
+
+from geometry.errors import InputError
+
+#: The one host that needs no --token (docs/contract.md, "shoha serve").
+LOCAL_HOST = "127.0.0.1"
+
+
+@click.command("serve")
+@click.argument("scene_files", metavar="[SCENE_FILE ...]", nargs=-1)
+@click.option("--reference", "references", multiple=True, metavar="LAYOUT",
+              help="A reference layout; it serves the scene it names. Repeatable.")
+@click.option("--host", default=LOCAL_HOST, show_default=True,
+              help="Address to listen on; any but 127.0.0.1 needs --token.")
+@click.option("--port", type=click.IntRange(1, 65535), default=8750, show_default=True)
+@click.option("--token", default=None, metavar="T",
+              help="Require 'Authorization: Bearer T' of every request; pages and sockets may use ?token=T.")
+@click.option("--cors", "cors", multiple=True, metavar="ORIGIN",
+              help="Let pages from ORIGIN (the simulator's WebGL build) call the service. Repeatable.")
+@click.option("--reference-time-limit", type=float, default=120.0, show_default=True, metavar="S",
+              help="Seconds of the background optimize of a scene with no --reference; 0 computes none.")
+@click.option("--max-sessions", type=click.IntRange(1, 10_000), default=64, show_default=True,
+              help="Sessions kept at once.")
+@click.option("--idle-timeout", type=float, default=3600.0, show_default=True, metavar="S",
+              help="Seconds after which an unused session is forgotten.")
+def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: str, port: int,
+              token: str | None, cors: tuple[str, ...], reference_time_limit: float, max_sessions: int,
+              idle_timeout: float) -> None:
+    """Serve live checks of a trainee's blocks over HTTP and WebSocket.
+
+    Serves the built-in scenes and every SCENE_FILE. A scene's reference is
+    the --reference layout that names it; without one it is optimized in the
+    background (seed 0) and cached, and the answers say "reference": null
+    until it is ready. Open http://HOST:PORT/sessions/ID/view to watch a session.
+    """
+    if host != LOCAL_HOST and not token:
+        raise InputError(f"--host {host}: any host but {LOCAL_HOST} needs --token, "
+                         "so that no one else on the network can drive the service")
+    if token is not None and (len(token) < 8 or not token.isprintable() or " " in token):
+        raise InputError("--token: use at least 8 printable characters without spaces")
+    if not math.isfinite(reference_time_limit) or reference_time_limit < 0:
+        raise InputError(f"--reference-time-limit {reference_time_limit}: must be 0 or more seconds")
+    if not math.isfinite(idle_timeout) or idle_timeout <= 0:
+        raise InputError(f"--idle-timeout {idle_timeout}: must be more than 0 seconds")
+    for origin in cors:
+        if not origin.startswith(("http://", "https://")) or origin.endswith("/"):
+            raise InputError(f"--cors {origin!r}: give an origin such as http://localhost:8000")
+
+    import logging
+
+    from geometry.scene import builtin_scenes, load_scene
+    from optimizer.serve.app import run
+    from optimizer.serve.service import Service
+
+    scenes = [load_scene(name) for name in builtin_scenes()] + [load_scene(path) for path in scene_files]
+    service = Service(scenes, list(references), reference_seconds=reference_time_limit,
+                      max_sessions=max_sessions, idle_s=idle_timeout)
+    logging.basicConfig(level=logging.WARNING, format="shoha serve: %(message)s")
+    click.echo(f"shoha serve: {len(service.scenes)} scenes on http://{host}:{port} "
+               f"(view a session at /sessions/ID/view)", err=True)
+    run(service, host, port, token, cors)
