@@ -8,9 +8,9 @@ porosity --method exact``'s on the same blocks, computed by the same functions:
 * **Out of tolerance**: :func:`geometry.tolerance.outside_volume` of the
   changed block, as ``geometry.tolerance.out_of_tolerance`` does for each block.
 * **Collisions**: a :class:`geometry.collision.CollisionWorld` finds the
-  blocks the changed one touches; the depth of each such pair comes from
-  :func:`geometry.collision.collisions` on the two blocks in layout order, the
-  same FCL calls in the same order as ``shoha check``.
+  blocks the changed one touches, and the depth of each such pair is asked
+  of FCL with the pair's earlier block first, as ``shoha check``'s
+  whole-layout search asks it.
 * **Porosity** (exact): ``shoha porosity`` sums each block's volume inside the
   design prism and, where blocks touch, unions each touching group with
   manifold3d. A group of a settled pile can hold tens of blocks, too many to
@@ -45,7 +45,7 @@ import numpy as np
 
 from geometry.blocks import Block
 from geometry.clip import volume_inside
-from geometry.collision import CollisionWorld, collisions
+from geometry.collision import CollisionWorld
 from geometry.constants import tol
 from geometry.pose import Pose
 from geometry.scene import Scene
@@ -225,12 +225,20 @@ class LiveLayout:
         others = [self._blocks[k] for k in touching if k in self._blocks]
         if not others:
             return 0.0
-        union = m3.Manifold.batch_boolean([_solid(o.block, o.pose) for o in others], m3.OpType.Add)
-        common = _solid(block, pose) ^ union
-        if common.is_empty():
+        # k ∩ (j1 ∪ j2 ...) is (k ∩ j1) ∪ (k ∩ j2) ...: each pair's intersection is small, and
+        # cheaper to take (0.14 ms for two Shake Blocks) than k against the union of all of them.
+        solid = _solid(block, pose)
+        parts = [part for part in (solid ^ _solid(o.block, o.pose) for o in others) if not part.is_empty()]
+        if not parts:
             return 0.0
-        for n, d in zip(self._prism.normals, self._prism.offsets, strict=True):
-            common = common.trim_by_plane(-n, -d)  # keep n . p <= d, as geometry.porosity does
+        common = parts[0] if len(parts) == 1 else m3.Manifold.batch_boolean(parts, m3.OpType.Add)
+        # Trim by the prism's planes that the common part crosses, as geometry.porosity trims unions.
+        box = np.array(common.bounding_box()).reshape(2, 3)
+        corners = np.array([[box[i, 0], box[j, 1], box[k, 2]]
+                            for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        crossed = (corners @ self._prism.normals.T - self._prism.offsets).max(axis=0) > 0.0
+        for n, d in zip(self._prism.normals[crossed], self._prism.offsets[crossed], strict=True):
+            common = common.trim_by_plane(-n, -d)  # keep n . p <= d
         return float(common.volume())
 
     def _above_crest(self, block: Block, pose: Pose) -> float:
@@ -241,16 +249,25 @@ class LiveLayout:
         return float(_solid(block, pose).trim_by_plane(np.array([0.0, 0.0, 1.0]), self._crest).volume())
 
     def _collide(self, key: int, touching: set[int]) -> None:
-        """Record the collisions of block ``key`` with the blocks it touches, as ``shoha check`` finds them.
-
-        ``geometry.collision.collisions`` on each pair in installation order
-        makes the same FCL calls, in the same order, as the whole-layout check.
-        """
+        """Record block ``key``'s collisions with the blocks it touches, as ``shoha check`` finds them."""
         if not touching:
             return
-        for other in touching:
-            a, b = sorted((key, other), key=self._seq.__getitem__)
-            pa, pb = self._blocks[a], self._blocks[b]
-            found = collisions([(a, pa.block, pa.pose), (b, pb.block, pb.pose)])
-            if found:
-                self._collisions[(min(a, b), max(a, b))] = found[0].depth
+        me = self._blocks[key]
+        before = [k for k in touching if self._seq[k] < self._seq[key]]
+        after = [k for k in touching if self._seq[k] > self._seq[key]]
+        # FCL's depth of a pair depends on which block comes first (by up to 2 mm between Shake
+        # Blocks), so each pair is asked with its earlier block as the probe, as
+        # CollisionWorld.pairs asks it: this block against the later ones at once, then each
+        # earlier one against this block alone.
+        if after:
+            later = CollisionWorld(self._world.cell)
+            for k in after:
+                later.add(k, self._blocks[k].block, self._blocks[k].pose)
+            for k, depth in later.query(me.block, me.pose):
+                self._collisions[(min(key, k), max(key, k))] = depth
+        if before:
+            alone = CollisionWorld(self._world.cell)
+            alone.add(key, me.block, me.pose)
+            for k in before:
+                for _, depth in alone.query(self._blocks[k].block, self._blocks[k].pose):
+                    self._collisions[(min(key, k), max(key, k))] = depth
