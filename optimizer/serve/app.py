@@ -28,6 +28,7 @@ The guard in front of every request and socket:
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import hmac
 import json
@@ -228,16 +229,33 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
             await ws.send_text(json.dumps({"error": str(exc)}))
             await ws.close(code=4000 + exc.status)
             return
-        try:
+
+        async def send() -> None:
             while True:
                 text = await queue.get()
                 if not text:
                     await ws.close(code=1000, reason="session ended")
                     return
                 await ws.send_text(text)
-        except (WebSocketDisconnect, RuntimeError):
-            pass  # the client went away
+
+        async def listen() -> None:
+            # Nothing is read from a watcher, but its going away must end this socket at once,
+            # not at the session's next change.
+            while (await ws.receive())["type"] != "websocket.disconnect":
+                pass
+
+        tasks = {asyncio.create_task(send()), asyncio.create_task(listen())}
+        try:
+            done, pending = await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+            for task in pending:
+                task.cancel()
+            for task in done:
+                if task.exception() is not None and not isinstance(
+                        task.exception(), (WebSocketDisconnect, RuntimeError)):
+                    raise task.exception()
         finally:
+            for task in tasks:
+                task.cancel()
             session.watchers.discard(queue)
 
     routes = [

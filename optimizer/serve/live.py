@@ -106,6 +106,7 @@ class LiveLayout:
         self._prism = scene.design.polytope
         self._zone = scene.tolerance
         self._crest = float(scene.design.z_top)
+        self._design_volume = scene.design_volume  # a shoelace sum each time it is asked for
         self._world = CollisionWorld(cell=2.0 * scene.block.bounding_radius)
         self._blocks: dict[int, Placed] = {}
         self._touching: dict[int, set[int]] = {}
@@ -143,7 +144,7 @@ class LiveLayout:
     @property
     def porosity_percent(self) -> float:
         """Exact porosity of the design prism, percent in [0, 100] (eq. 1 of the reference paper)."""
-        v = self.scene.design_volume
+        v = self._design_volume
         return float(min(100.0, max(0.0, 100.0 * (v - self.filled_m3) / v)))
 
     def out_of_tolerance(self) -> list[tuple[int, float]]:

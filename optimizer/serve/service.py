@@ -162,14 +162,15 @@ class Service:
                 served.status, served.reason = "unavailable", "a section scene has no 3D reference"
             elif self.reference_seconds <= 0:
                 served.status, served.reason = "unavailable", "background references are off"
+            elif reference_cache(served.scene, self.reference_seconds).is_file():
+                self._adopt_cached(served)  # before the first request: a restart has it at once
         self._spawn(self._compute_references())
         self._spawn(self._expire_sessions())
 
     async def stop(self) -> None:
         for task in list(self._tasks):
             task.cancel()
-        for sid in list(self.store._sessions):
-            self.store.end(sid)
+        self.store.end_all()
         if self.workers is not None:
             self.workers.shutdown()
 
@@ -199,13 +200,18 @@ class Service:
                     served.status, served.reason = "unavailable", f"optimize failed: {exc}"
                     log.warning("reference for %s: %s", served.scene.name, exc)
                     continue
-            try:
-                _, layout = load_reference(str(path), self.scenes)
-            except InputError as exc:
-                served.status, served.reason = "unavailable", str(exc)
-                continue
-            served.set_reference(layout, "computed")
-            self.workers.warm([(served.scene.source, served.ref_key, layout.to_dict())])
+            self._adopt_cached(served)
+
+    def _adopt_cached(self, served: Served) -> None:
+        path = reference_cache(served.scene, self.reference_seconds)
+        try:
+            _, layout = load_reference(str(path), self.scenes)
+        except InputError as exc:
+            served.status, served.reason = "unavailable", str(exc)
+            return
+        served.set_reference(layout, "computed")
+        assert self.workers is not None
+        self.workers.warm([(served.scene.source, served.ref_key, layout.to_dict())])
 
     # --- endpoints --------------------------------------------------------------------
 
@@ -297,7 +303,7 @@ class Service:
                                            served.reference.to_dict())
         result = await asyncio.wrap_future(future)
         # The verdict is for the blocks as they were sent; those changed since are left out.
-        if session.version == version and self.store._sessions.get(sid) is session:
+        if session.version == version and self.store.peek(sid) is session:
             session.unstable = set(result.get("unstable_blocks", []))
             self._changed(session, {"changed": [], "removed": [], "replaced": False}, time.perf_counter())
         return result
@@ -355,7 +361,7 @@ class Service:
         entry = self._replans.get(sid)
         if entry is None or entry[1] is not future or future.exception() is not None:
             return
-        session = self.store._sessions.get(sid)
+        session = self.store.peek(sid)
         if session is None:
             return
         layout = layout_from_dict(future.result(), "re-plan", session.scene.base_dir)
@@ -367,10 +373,11 @@ class Service:
     # --- the view ---------------------------------------------------------------
 
     def watch(self, sid: str) -> tuple[Session, asyncio.Queue[str]]:
-        """A queue of the session's events, starting with its state now."""
+        """A queue of the session's events, starting with its state now and every block in it."""
         session = self._session(sid)
         queue: asyncio.Queue[str] = asyncio.Queue(maxsize=QUEUE_EVENTS)
-        queue.put_nowait(json.dumps({**self.state(session, time.perf_counter()), "changed": [],
-                                     "removed": [], "replaced": False}))
+        queue.put_nowait(json.dumps({**self.state(session, time.perf_counter()), "removed": [],
+                                     "changed": [session.block_record(p.id) for p in session.live],
+                                     "replaced": True}))
         session.watchers.add(queue)
         return session, queue

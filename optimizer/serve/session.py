@@ -218,6 +218,14 @@ class SessionStore:
         session.last_used = self.clock()
         return session
 
+    def peek(self, sid: str) -> Session | None:
+        """The session ``sid`` if there is one, without marking it used."""
+        return self._sessions.get(sid)
+
+    def end_all(self) -> None:
+        for sid in list(self._sessions):
+            self.end(sid)
+
     def end(self, sid: str) -> bool:
         """Forget a session, and tell its watchers; False if there was none."""
         session = self._sessions.pop(sid, None)

@@ -14,9 +14,11 @@ Three kinds of job leave the service's own process:
 A thread would not do: these are Python and NumPy work that holds the GIL for
 milliseconds at a time, and every request would wait behind it. Each pool is
 one process, started by ``spawn`` (no copy of the event loop or its
-sockets), and lowered in priority (``os.nice``) so that the service's own
-process comes first on a busy machine. References and re-plans share one
-pool; scores have their own, so a score never waits for a reference.
+sockets). References and re-plans share one pool, lowered in priority
+(``os.nice``) so that the service and its scores come first on a busy
+machine; scores have their own pool, at normal priority, so a score never
+waits for a reference. A child whose service has gone (killed, not stopped)
+ends itself rather than run a long optimize for no one.
 
 The functions run in the child take and return plain data (scene names and
 paths the service chose, layout dicts), never a client's path.
@@ -27,6 +29,8 @@ from __future__ import annotations
 import hashlib
 import inspect
 import os
+import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 from importlib import metadata
 from multiprocessing import get_context
@@ -40,7 +44,20 @@ from geometry.scene import Scene
 CHILD_NICENESS = 10
 
 
+def _watch_parent() -> None:
+    """End this child once the service that started it is gone (its parent changes)."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(0)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def _lower_priority() -> None:
+    _watch_parent()
     try:
         os.nice(CHILD_NICENESS)
     except OSError:  # pragma: no cover - nice is best effort
@@ -154,7 +171,7 @@ class Workers:
 
     def __init__(self) -> None:
         ctx = get_context("spawn")
-        self.scores = ProcessPoolExecutor(1, mp_context=ctx, initializer=_lower_priority)
+        self.scores = ProcessPoolExecutor(1, mp_context=ctx, initializer=_watch_parent)
         self.plans = ProcessPoolExecutor(1, mp_context=ctx, initializer=_lower_priority)
 
     def submit_score(self, *args: Any) -> Future[dict[str, Any]]:
@@ -170,5 +187,11 @@ class Workers:
         return self.scores.submit(warm, items)
 
     def shutdown(self) -> None:
+        """Stop both pools now: a reference being computed is abandoned (its cache file is not written)."""
         for pool in (self.scores, self.plans):
-            pool.shutdown(wait=False, cancel_futures=True)
+            # ProcessPoolExecutor waits for a running job even with cancel_futures; an optimize may run
+            # for minutes, so its process is ended here.
+            processes = list((getattr(pool, "_processes", None) or {}).values())
+            for process in processes:
+                process.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
