@@ -172,9 +172,10 @@ def world_to_unity(pose: Pose, origin: np.ndarray) -> dict[str, Any]:
     and sign flips, exact in floating point.
     """
     d = pose.position - origin
+    # "+ 0.0" writes a negated zero as 0.0, not -0.0; every other value is exact.
     w, qx, qy, qz = (float(v) for v in pose.quaternion)
     return {"position": {"x": float(d[0]), "y": float(d[2]), "z": float(d[1])},
-            "rotation": {"x": -qx, "y": -qz, "z": -qy, "w": w}}
+            "rotation": {"x": -qx + 0.0, "y": -qz + 0.0, "z": -qy + 0.0, "w": w}}
 
 
 class SessionStore:
