@@ -110,7 +110,7 @@ class Served:
     ``log`` for messages.
     """
 
-    def __init__(self, *args: str, timeout: float = 60.0):
+    def __init__(self, *args: str, timeout: float = 60.0, env: dict[str, str] | None = None):
         import socket
 
         with socket.socket() as s:
@@ -119,6 +119,7 @@ class Served:
         self.args = [*args, "--port", str(self.port)]
         self.url = f"http://127.0.0.1:{self.port}"
         self.timeout = timeout
+        self.env = {**os.environ, **(env or {})}
         self.log = ""
 
     def __enter__(self) -> Served:
@@ -128,7 +129,7 @@ class Served:
 
         exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
         self.proc = subprocess.Popen([exe, "serve", *self.args], stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.PIPE, text=True)
+                                     stderr=subprocess.PIPE, text=True, env=self.env)
         deadline = time.monotonic() + self.timeout
         headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
         while time.monotonic() < deadline:

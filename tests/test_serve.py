@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -386,6 +387,28 @@ def test_the_view_is_one_offline_page(http):
     assert '<script src="/static/plotly.js">' in page.text
     js = http.get("/static/plotly.js")
     assert js.status_code == 200 and b"plotly" in js.content[:2000].lower()
+
+
+def test_view_follows_the_session_started_last(http):
+    sid = new_session(http)
+    r = http.get("/view", params={"token": "x"}, follow_redirects=False)
+    assert r.status_code == 307 and r.headers["location"] == f"/sessions/{sid}/view?token=x"
+
+
+def test_open_shows_the_view_in_the_browser(tmp_path):
+    """``--open`` hands /view to the default browser ($BROWSER here: a script that notes the address)."""
+    noted = tmp_path / "opened.txt"
+    browser = f"{sys.executable} -c \"import sys; open(r'{noted}', 'w').write(sys.argv[1])\" %s"
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0", "--open",
+                env={"BROWSER": browser}) as served, httpx.Client(base_url=served.url) as http:
+        deadline = time.monotonic() + 60
+        while not noted.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert noted.read_text() == f"{served.url}/view"
+        waiting = http.get("/view")  # no session yet: a page that looks again
+        assert waiting.status_code == 200 and 'http-equiv="refresh"' in waiting.text
+        sid = new_session(http)
+        assert http.get("/view", follow_redirects=False).headers["location"] == f"/sessions/{sid}/view"
 
 
 def test_score_is_shoha_score(http, saves, tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 
 import click
 
@@ -29,9 +30,11 @@ LOCAL_HOST = "127.0.0.1"
               help="Sessions kept at once.")
 @click.option("--idle-timeout", type=float, default=3600.0, show_default=True, metavar="S",
               help="Seconds after which an unused session is forgotten.")
+@click.option("--open", "open_view", is_flag=True,
+              help="Open the live view (/view: the session started last) in the default browser.")
 def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: str, port: int,
               token: str | None, cors: tuple[str, ...], reference_time_limit: float, max_sessions: int,
-              idle_timeout: float) -> None:
+              idle_timeout: float, open_view: bool) -> None:
     """Serve live checks of a trainee's blocks over HTTP and WebSocket.
 
     Serves the built-in scenes and every SCENE_FILE. A scene's reference is
@@ -62,6 +65,29 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
     service = Service(scenes, list(references), reference_seconds=reference_time_limit,
                       max_sessions=max_sessions, idle_s=idle_timeout)
     logging.basicConfig(level=logging.WARNING, format="shoha serve: %(message)s")
-    click.echo(f"shoha serve: {len(service.scenes)} scenes on http://{host}:{port} "
-               f"(view a session at /sessions/ID/view)", err=True)
+    url = f"http://{host}:{port}"
+    click.echo(f"shoha serve: {len(service.scenes)} scenes on {url}; the live view is {url}/view", err=True)
+    if open_view:
+        threading.Thread(target=_open_when_up, args=(host, port, token), daemon=True).start()
     run(service, host, port, token, cors)
+
+
+def _open_when_up(host: str, port: int, token: str | None) -> None:
+    """Open ``/view`` in the default browser once the service answers (best effort, for 60 s)."""
+    import http.client
+    import time
+    import webbrowser
+    from urllib.parse import quote
+
+    headers = {"Authorization": f"Bearer {token}"} if token else {}
+    for _ in range(600):
+        try:
+            conn = http.client.HTTPConnection(host, port, timeout=1.0)
+            conn.request("GET", "/healthz", headers=headers)
+            if conn.getresponse().status == 200:
+                query = f"?token={quote(token, safe='')}" if token else ""
+                webbrowser.open(f"http://{host}:{port}/view{query}")
+                return
+        except OSError:
+            pass
+        time.sleep(0.1)

@@ -42,7 +42,7 @@ from starlette.applications import Starlette
 from starlette.middleware import Middleware
 from starlette.middleware.cors import CORSMiddleware
 from starlette.requests import Request
-from starlette.responses import HTMLResponse, Response
+from starlette.responses import HTMLResponse, RedirectResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket, WebSocketDisconnect
@@ -59,6 +59,11 @@ LOCAL_NAMES = ("127.0.0.1", "localhost")
 
 #: Most sockets watching one session at once.
 MAX_WATCHERS = 16
+
+#: ``GET /view`` while no session is open: looks again every second.
+WAITING = ("<!doctype html><html lang=\"en\"><head><meta charset=\"utf-8\"><meta http-equiv=\"refresh\" "
+           "content=\"1\"><title>shoha live</title></head><body style=\"font-family: sans-serif\">"
+           "<p>shoha serve: waiting for a session to start (POST /sessions)...</p></body></html>")
 
 
 def _json(payload: Any, status: int = 200) -> Response:
@@ -214,6 +219,14 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
         query = f"?token={quote(token_q, safe='')}" if token_q else ""
         return HTMLResponse(page(session.scene, service.catalogue, session.id, query))
 
+    async def latest_view(request: Request) -> Response:
+        """The view of the session started last; a page that waits for one while there is none."""
+        session = service.latest_session()
+        query = f"?{request.url.query}" if request.url.query else ""
+        if session is None:
+            return HTMLResponse(WAITING, headers={"Cache-Control": "no-store"})
+        return RedirectResponse(f"/sessions/{session.id}/view{query}", status_code=307)
+
     async def static_plotly(request: Request) -> Response:
         return Response(plotly_js(), media_type="text/javascript",
                         headers={"Cache-Control": "max-age=86400"})
@@ -271,6 +284,7 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
         Route("/sessions/{sid}/score", answers(score), methods=["POST"]),
         Route("/sessions/{sid}/hint", answers(hint), methods=["GET"]),
         Route("/sessions/{sid}/view", view, methods=["GET"]),
+        Route("/view", latest_view, methods=["GET"]),
         Route("/static/plotly.js", static_plotly, methods=["GET"]),
         Route("/openapi.json", answers(openapi), methods=["GET"]),
         WebSocketRoute("/sessions/{sid}/events", events),

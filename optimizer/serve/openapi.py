@@ -115,6 +115,15 @@ def schema() -> dict[str, Any]:
                            "(`changed`, world frame), `removed` ids and `replaced`; the first event "
                            "holds every block", {"101": _answer("switching to WebSocket")}),
             },
+            "/view": {"get": _op("a redirect to the view of the session started last, or a page that waits "
+                                 "for one", {"200": {"description": "waiting page",
+                                                     "content": {"text/html": {}}},
+                                             "307": {"description": "to /sessions/{sid}/view"}},
+                                 errors=("401",))},
+            "/static/plotly.js": {"get": _op("plotly's bundle from the installed plotly package (the view)",
+                                             {"200": {"description": "script",
+                                                      "content": {"text/javascript": {}}}},
+                                             errors=("401",))},
             "/openapi.json": {"get": _op("this schema", {"200": _answer("schema", {"type": "object"})},
                                          errors=("401",))},
         },

@@ -146,6 +146,7 @@ class Service:
         self.can_replan = optimize_keeps()
         self._replans: dict[str, tuple[int, Future[dict[str, Any]] | None, list[PlanBlock]]] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
+        self.latest: str | None = None
 
     # --- life -------------------------------------------------------------------------
 
@@ -244,7 +245,12 @@ class Service:
         frame = frame_value(body.get("frame"))
         origin = origin_value(body.get("origin"))
         session = self.store.create(self.scenes[name].scene, frame, origin)
+        self.latest = session.id
         return self.state(session, started)
+
+    def latest_session(self) -> Session | None:
+        """The session started last, while it lasts (``GET /view`` follows it)."""
+        return self.store.peek(self.latest) if self.latest is not None else None
 
     def get_session(self, sid: str) -> dict[str, Any]:
         started = time.perf_counter()

@@ -214,6 +214,8 @@ function connect() {
   };
   ws.onclose = (e) => {
     document.getElementById("status").textContent = "disconnected" + (e.reason ? ": " + e.reason : "");
+    // A session that ends hands over to the next one: /view follows the session started last.
+    if (e.code === 1000) setTimeout(() => { location.href = "/view" + location.search; }, 1000);
   };
 }
 connect();
