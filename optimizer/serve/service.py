@@ -19,6 +19,7 @@ import json
 import logging
 import time
 from concurrent.futures import Future
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -300,14 +301,20 @@ class Service:
         session = self._session(sid)
         served = self._served(session)
         if served.reference is None:
-            raise BodyError(409, f"scene {served.scene.name!r} has no reference yet ({served.status}"
-                                 f"{': ' + served.reason if served.reason else ''}); try again later")
+            later = "; try again later" if served.status in ("queued", "computing") else ""
+            raise BodyError(409, f"scene {served.scene.name!r} has no reference ({served.status}"
+                                 f"{': ' + served.reason if served.reason else ''}){later}")
         assert self.workers is not None
         blocks = session.layout()
         version = session.version
-        future = self.workers.submit_score(served.scene.source, blocks, served.ref_key,
-                                           served.reference.to_dict())
-        result = await asyncio.wrap_future(future)
+        try:
+            result = await asyncio.wrap_future(self.workers.submit_score(
+                served.scene.source, blocks, served.ref_key, served.reference.to_dict()))
+        except InputError as exc:
+            raise BodyError(422, f"score: {exc}") from None
+        except BrokenProcessPool:
+            self.workers.restart_scores()
+            raise BodyError(503, "the scoring process stopped and is restarted; try again") from None
         # The verdict is for the blocks as they were sent; those changed since are left out.
         if session.version == version and self.store.peek(sid) is session:
             session.unstable = set(result.get("unstable_blocks", []))
@@ -347,6 +354,11 @@ class Service:
                                "(optimize takes no keep yet)",
                     "seconds": time.perf_counter() - started}
         version, future, plan = self._replans.get(session.id, (-1, None, []))
+        failed = future is not None and future.done() and future.exception() is not None
+        if failed and version == session.version:
+            return {"block": None, "source": "replan", "status": "unavailable",
+                    "message": f"the re-plan failed: {str(future.exception()).splitlines()[0][:200]}",
+                    "seconds": time.perf_counter() - started}
         if plan:
             found = first_fitting(session.scene, session.live, plan)
             if found is not None:

@@ -174,6 +174,11 @@ class Workers:
         self.scores = ProcessPoolExecutor(1, mp_context=ctx, initializer=_watch_parent)
         self.plans = ProcessPoolExecutor(1, mp_context=ctx, initializer=_lower_priority)
 
+    def restart_scores(self) -> None:
+        """A new scoring process, after the last one died (a crash in the settle, say)."""
+        self.scores.shutdown(wait=False, cancel_futures=True)
+        self.scores = ProcessPoolExecutor(1, mp_context=get_context("spawn"), initializer=_watch_parent)
+
     def submit_score(self, *args: Any) -> Future[dict[str, Any]]:
         return self.scores.submit(score_layout, *args)
 
