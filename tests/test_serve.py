@@ -18,6 +18,8 @@ from typing import Any
 import httpx
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from geometry.layout import Layout, Placement, read_layout
 from optimizer.serve.session import world_to_unity
@@ -522,3 +524,35 @@ def test_the_help_does_not_import_the_service():
             "print(any(m.startswith(('optimizer.serve', 'starlette', 'uvicorn')) for m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.stdout.strip() == "False", out.stderr
+
+
+# --- anything at all ---------------------------------------------------------------------------
+
+_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70),
+                     st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=12))
+_JSON = st.recursive(_SCALARS, lambda inner: st.one_of(
+    st.lists(inner, max_size=4),
+    st.dictionaries(st.sampled_from(["x", "y", "z", "w", "position", "rotation", "quaternion", "type",
+                                     "time_s", "blocks", "format", "scene", "elapsed_s", "id"])
+                    | st.text(max_size=6), inner, max_size=5)), max_leaves=20)
+
+
+@pytest.fixture(scope="module")
+def scratch_session(service):
+    with httpx.Client(base_url=service.url, timeout=60.0) as http:
+        return new_session(http)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(body=_JSON, where=st.sampled_from(["blocks/3", "layout", "/sessions"]))
+def test_no_body_makes_the_service_fail(service, http, scratch_session, body, where):
+    """Whatever JSON arrives, the answer is a state or a 4xx with one line, never a 500."""
+    url = where if where.startswith("/") else f"/sessions/{scratch_session}/{where}"
+    method = "POST" if where.startswith("/") else "PUT"
+    r = http.request(method, url, content=json.dumps(body).encode(), headers=JSON)
+    assert r.status_code in (200, 201, 400, 404, 413, 415, 422, 503), (body, r.status_code, r.text[:300])
+    if r.status_code >= 400:
+        assert "\n" not in r.json()["error"]
+    if where == "/sessions" and r.status_code == 201:
+        http.delete(f"/sessions/{r.json()['session']}")
+    assert service.alive()
