@@ -459,6 +459,29 @@ def test_a_request_without_the_token_is_refused(tmp_path):
                 assert json.loads(ws.recv(timeout=10))["session"] == sid
 
 
+def test_cors_is_off_unless_an_origin_is_named(service):
+    game = "http://localhost:8000"
+    preflight = {"Origin": game, "Access-Control-Request-Method": "PUT",
+                 "Access-Control-Request-Headers": "authorization, content-type"}
+    r = httpx.options(service.url + "/sessions/x/blocks/0", headers=preflight)
+    assert "access-control-allow-origin" not in r.headers
+    assert "access-control-allow-origin" not in httpx.get(service.url + "/healthz",
+                                                          headers={"Origin": game}).headers
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0", "--cors", game,
+                "--token", "cors-token-123") as served:
+        # The preflight carries no token, and is answered; the request after it needs the token.
+        r = httpx.options(served.url + "/sessions/x/blocks/0", headers=preflight)
+        assert r.status_code == 200 and r.headers["access-control-allow-origin"] == game
+        assert "PUT" in r.headers["access-control-allow-methods"]
+        r = httpx.options(served.url + "/sessions/x/blocks/0",
+                          headers={**preflight, "Origin": "http://evil.example"})
+        assert r.headers.get("access-control-allow-origin") != "http://evil.example"
+        r = httpx.get(served.url + "/healthz",
+                      headers={"Origin": game, "Authorization": "Bearer cors-token-123"})
+        assert r.status_code == 200 and r.headers["access-control-allow-origin"] == game
+        assert httpx.get(served.url + "/healthz", headers={"Origin": game}).status_code == 401
+
+
 def test_any_host_but_localhost_needs_a_token():
     r = shoha("serve", "--host", "0.0.0.0", "--port", "8799", timeout=60)
     assert r.returncode == 2
