@@ -24,8 +24,9 @@ LOCAL_HOST = "127.0.0.1"
               help="Require 'Authorization: Bearer T' of every request; pages and sockets may use ?token=T.")
 @click.option("--cors", "cors", multiple=True, metavar="ORIGIN",
               help="Let pages from ORIGIN (the simulator's WebGL build) call the service. Repeatable.")
-@click.option("--reference-time-limit", type=float, default=120.0, show_default=True, metavar="S",
-              help="Seconds of the background optimize of a scene with no --reference; 0 computes none.")
+@click.option("--reference-time-limit", type=float, default=None, metavar="S",
+              help="Seconds of the background optimize of a scene with no --reference "
+                   "(default: optimize's own); 0 computes none.")
 @click.option("--max-sessions", type=click.IntRange(1, 10_000), default=64, show_default=True,
               help="Sessions kept at once.")
 @click.option("--idle-timeout", type=float, default=3600.0, show_default=True, metavar="S",
@@ -33,7 +34,7 @@ LOCAL_HOST = "127.0.0.1"
 @click.option("--open", "open_view", is_flag=True,
               help="Open the live view (/view: the session started last) in the default browser.")
 def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: str, port: int,
-              token: str | None, cors: tuple[str, ...], reference_time_limit: float, max_sessions: int,
+              token: str | None, cors: tuple[str, ...], reference_time_limit: float | None, max_sessions: int,
               idle_timeout: float, open_view: bool) -> None:
     """Serve live checks of a trainee's blocks over HTTP and WebSocket.
 
@@ -47,7 +48,8 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
                          "so that no one else on the network can drive the service")
     if token is not None and (len(token) < 8 or not token.isprintable() or " " in token):
         raise InputError("--token: use at least 8 printable characters without spaces")
-    if not math.isfinite(reference_time_limit) or reference_time_limit < 0:
+    if reference_time_limit is not None and (not math.isfinite(reference_time_limit)
+                                             or reference_time_limit < 0):
         raise InputError(f"--reference-time-limit {reference_time_limit}: must be 0 or more seconds")
     if not math.isfinite(idle_timeout) or idle_timeout <= 0:
         raise InputError(f"--idle-timeout {idle_timeout}: must be more than 0 seconds")

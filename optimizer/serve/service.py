@@ -44,8 +44,6 @@ from .workers import Workers, optimize_keeps, reference_cache
 
 log = logging.getLogger("shoha.serve")
 
-#: Seconds a background optimize of a scene without ``--reference`` may take (optimize's default).
-REFERENCE_SECONDS = 120.0
 
 #: Seconds a re-plan around a trainee's blocks may take.
 REPLAN_SECONDS = 60.0
@@ -127,14 +125,15 @@ class Service:
         The scenes to serve, by name (a later one of the same name wins).
     references : list of str
         ``--reference`` layout files; each names its scene.
-    reference_seconds : float
+    reference_seconds : float or None
         Time limit of the background optimize of a scene without a
-        reference; 0 computes none (the state's ``reference`` stays null).
+        reference: None for optimize's own default, 0 to compute none (the
+        state's ``reference`` stays null).
     max_sessions, idle_s : see :class:`SessionStore`.
     """
 
     def __init__(self, scenes: list[Scene], references: list[str] = (), *,
-                 reference_seconds: float = REFERENCE_SECONDS, max_sessions: int = MAX_SESSIONS,
+                 reference_seconds: float | None = None, max_sessions: int = MAX_SESSIONS,
                  idle_s: float = IDLE_SECONDS):
         self.scenes: dict[str, Served] = {s.name: Served(s) for s in scenes}
         for path in references:
@@ -162,7 +161,7 @@ class Service:
                 continue
             if served.scene.kind != "3d":
                 served.status, served.reason = "unavailable", "a section scene has no 3D reference"
-            elif self.reference_seconds <= 0:
+            elif self.reference_seconds is not None and self.reference_seconds <= 0:
                 served.status, served.reason = "unavailable", "background references are off"
             elif reference_cache(served.scene, self.reference_seconds).is_file():
                 self._adopt_cached(served)  # before the first request: a restart has it at once
@@ -283,8 +282,9 @@ class Service:
         live = LiveLayout(session.scene)
         for key, b in parsed.blocks:
             live.put(key, b.type, b.block, b.pose, b.time_s)
+        # As a save's time is read for shoha score: its elapsed_s where it has one, else the latest time_s.
         times = [b.time_s for _, b in parsed.blocks if b.time_s is not None]
-        elapsed = max([t for t in (parsed.elapsed_s, *times) if t is not None], default=None)
+        elapsed = parsed.elapsed_s if parsed.elapsed_s is not None else max(times, default=None)
         change = session.replace(live, elapsed)
         return self._changed(session, change, started)
 
@@ -309,7 +309,7 @@ class Service:
         version = session.version
         try:
             result = await asyncio.wrap_future(self.workers.submit_score(
-                served.scene.source, blocks, served.ref_key, served.reference.to_dict()))
+                served.scene.source, blocks, served.ref_key, served.reference.to_dict(), session.elapsed_s))
         except InputError as exc:
             raise BodyError(422, f"score: {exc}") from None
         except BrokenProcessPool:

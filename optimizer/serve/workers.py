@@ -71,7 +71,7 @@ def optimize_keeps() -> bool:
     return "keep" in inspect.signature(optimize).parameters
 
 
-def reference_cache(scene: Scene, time_limit: float) -> Path:
+def reference_cache(scene: Scene, time_limit: float | None) -> Path:
     """Where the computed reference of ``scene`` is cached: keyed by the scene, the limit and shoha's version.
 
     The key is the scene's whole description (its ``repr``: design, tolerance,
@@ -95,13 +95,17 @@ def _load_scene(source: str) -> Scene:
     return load_scene(source)
 
 
-def compute_reference(source: str, time_limit: float, path: str) -> str:
-    """Optimize the scene ``source`` (a built-in name or a path the service was started with) and cache it."""
+def compute_reference(source: str, time_limit: float | None, path: str) -> str:
+    """Optimize the scene ``source`` (a built-in name or a path the service was started with) and cache it.
+
+    ``time_limit`` None leaves optimize's own default.
+    """
     from geometry.layout import write_layout
     from optimizer.api import optimize
 
     scene = _load_scene(source)
-    result = optimize(scene, seed=0, time_limit=time_limit)
+    limit = {} if time_limit is None else {"time_limit": time_limit}
+    result = optimize(scene, seed=0, **limit)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     layout = result.layout
@@ -141,16 +145,22 @@ def _reference(source: str, key: str, reference: dict[str, Any]) -> Any:
     return _REFERENCES[key]
 
 
-def score_layout(source: str, blocks: dict[str, Any], ref_key: str,
-                 reference: dict[str, Any]) -> dict[str, Any]:
-    """``shoha score --json``'s object for ``blocks`` (a layout dict) against ``reference``."""
+def score_layout(source: str, blocks: dict[str, Any], ref_key: str, reference: dict[str, Any],
+                 elapsed_s: float | None = None) -> dict[str, Any]:
+    """``shoha score --json``'s object for ``blocks`` (a layout dict) against ``reference``.
+
+    ``elapsed_s`` (the session's time) goes to ``score`` where it takes one, so
+    that the answer has the completion time ``shoha score`` reports for a save
+    with times.
+    """
     from geometry.layout import layout_from_dict
     from optimizer.score import score
 
     scene = _load_scene(source)
     ref = _reference(source, ref_key, reference)
     layout = layout_from_dict(blocks, "session", scene.base_dir)
-    return score(scene, layout.placed(), ref).to_dict()
+    timed = {"elapsed_s": elapsed_s} if "elapsed_s" in inspect.signature(score).parameters else {}
+    return score(scene, layout.placed(), ref, **timed).to_dict()
 
 
 def warm(items: list[tuple[str, str, dict[str, Any]]]) -> int:
