@@ -272,6 +272,8 @@ BAD = [
          {"id": 0, "type": "mesh:/etc/hostname", "position": [0, 6, 1],
           "quaternion": [1, 0, 0, 0]}]}).encode(),
      JSON, 422),
+    ("a save whose elapsed_s is before a block's time_s", "PUT", "layout",
+     json.dumps({"blocks": [{**BLOCK, "time_s": 50.0}], "elapsed_s": 40.0}).encode(), JSON, 422),
     ("a layout of another format", "PUT", "layout",
      json.dumps({"format": "shoha-layout/9", "scene": "mini", "blocks": []}).encode(), JSON, 422),
     ("a block not laid", "DELETE", "blocks/77", None, {}, 404),

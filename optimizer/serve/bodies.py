@@ -303,14 +303,19 @@ def layout_body(value: Any, scene: Scene, origin: np.ndarray, catalogue: Catalog
                              f"({MAX_SESSION_BLOCKS})")
     elapsed = time_value(value.get("elapsed_s"), "layout: elapsed_s")
     if "format" in value:
-        return LayoutBody(_layout_file(value, scene, catalogue), elapsed)
-    out = []
-    for index, raw in enumerate(blocks):
-        where = f"layout: block #{index}"
-        raw = _object(raw, where)
-        # A save block's other keys are ignored, as shoha convert ignores them.
-        picked = {k: raw[k] for k in ("position", "rotation", "type", "time_s") if k in raw}
-        out.append((index, block_body(picked, "unity", origin, scene.block_type, catalogue, where)))
+        out = _layout_file(value, scene, catalogue)
+    else:
+        out = []
+        for index, raw in enumerate(blocks):
+            where = f"layout: block #{index}"
+            raw = _object(raw, where)
+            # A save block's other keys are ignored, as shoha convert ignores them.
+            picked = {k: raw[k] for k in ("position", "rotation", "type", "time_s") if k in raw}
+            out.append((index, block_body(picked, "unity", origin, scene.block_type, catalogue, where)))
+    for key, b in out:
+        if elapsed is not None and b.time_s is not None and b.time_s > elapsed:
+            raise BodyError(422, f"layout: elapsed_s {elapsed:g} is earlier than block {key}'s time_s "
+                                 f"{b.time_s:g}")
     return LayoutBody(out, elapsed)
 
 

@@ -64,6 +64,8 @@ def scene_info(scene: Scene) -> dict[str, Any]:
         "slope_run_per_rise": scene.slope,
         "length_m": scene.length,
         "foundation": scene.foundation.kind,
+        "wall": scene.wall,
+        "block_height_m": scene.block.height,
     }
 
 
