@@ -20,6 +20,10 @@ $(VENV)/.installed-test: pyproject.toml $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $@
 
+$(VENV)/.installed-bench: pyproject.toml $(VENV)/.installed-test
+	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
+	touch $@
+
 demo: $(VENV)/.installed
 	mkdir -p $(OUT)
 	$(BIN)/shoha scene info mini
@@ -38,7 +42,7 @@ test-slow: $(VENV)/.installed-test
 
 # Every benchmark in benchmarks/ (docs/benchmarks.md); results in benchmarks/results/.
 # About 27 minutes on 2 cores (26.8 min in benchmarks/results/run_all.csv).
-bench: $(VENV)/.installed-test
+bench: $(VENV)/.installed-bench
 	$(BIN)/python benchmarks/run_all.py
 
 # The README's pictures: the browser tests' screenshots, copied to docs/.

@@ -416,3 +416,77 @@ def jittered(placed: Placed, shift: float, degrees: float, seed: int = SEED) -> 
 def world_vertices(block: Block, pose: Pose) -> np.ndarray:
     """A posed block's mesh vertices, (n, 3) metres, world frame."""
     return block.vertices @ quat_to_matrix(pose.quaternion).T + pose.position
+
+
+# --- a service in its own process ------------------------------------------------------
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class ServiceProcess:
+    """A service started as a subprocess, ready once ``GET /healthz`` answers, stopped on exit.
+
+    Parameters
+    ----------
+    argv : list of str
+        The command; it must listen on ``port``.
+    port : int
+    timeout : float, seconds
+        How long start-up may take.
+    """
+
+    def __init__(self, argv: list[str], port: int, timeout: float = 60.0):
+        self.argv, self.port, self.timeout = argv, port, timeout
+        self.url = f"http://127.0.0.1:{port}"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def __enter__(self) -> ServiceProcess:
+        import httpx
+
+        self.proc = subprocess.Popen(self.argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        deadline = time.monotonic() + self.timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"{self.argv[:3]} exited: {self.proc.stderr.read().decode()[-2000:]}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            time.sleep(0.1)
+        self.__exit__(None, None, None)
+        raise RuntimeError(f"{self.argv[:3]} did not answer within {self.timeout} s")
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+
+def percentiles(seconds: Sequence[float]) -> dict[str, float]:
+    """p50, p90, p99 and max of request times, in milliseconds."""
+    a = 1e3 * np.asarray(seconds, dtype=float)
+    return {"n": int(len(a)), "p50_ms": float(np.percentile(a, 50)), "p90_ms": float(np.percentile(a, 90)),
+            "p99_ms": float(np.percentile(a, 99)), "max_ms": float(a.max())}
+
+
+def settled(layout_path: Path, seed: int = 7) -> tuple[Scene, Placed]:
+    """A reference layout after a physics settle: blocks in contact, as a simulator saves a pile at rest."""
+    from settle import settle
+
+    layout = read_layout(layout_path)
+    scene = layout.load_scene()
+    placed = layout.placed()
+    result = settle(scene, placed, seed=seed)
+    return scene, [(k, b, result.poses[k]) for k, b, _ in placed]

@@ -372,6 +372,39 @@ def values() -> dict[str, Any]:
         if total:
             minutes = float(total["wall_s"]) / 60
             v["bench_minutes"] = (minutes, 30.0, meets(minutes, 30.0))
+
+    sl = rows("serve_latency")
+    if sl:
+        load = (meta("serve_latency") or {}).get("machine", {}).get("load_average", [""])[0]
+        v["serve_load"] = load
+        v["serve_table"] = table(
+            "<case | blocks | requests | p50 (ms) | p90 (ms) | p99 (ms) | max (ms) | "
+            "service's own p50 (ms) | <target | <meets",
+            [
+                [
+                    r["case"], r["blocks"], r["n"], g(r["p50_ms"]), g(r["p90_ms"]), g(r["p99_ms"]),
+                    g(r["max_ms"]), g(r["server_p50_ms"]),
+                    " / ".join(f"{k} {r[f'target_{k}_ms']} ms" for k in ("p50", "p99")
+                               if r[f"target_{k}_ms"]),
+                    r["meets"],
+                ]
+                for r in sl
+            ],
+        ) + f"\n\n1-minute load average at the start: {load} (2 cores)."
+        by_case = {r["case"]: r for r in sl}
+        for case, key in (("mini-75", "serve_mini"), ("full-1000", "serve_full"), ("event", "serve_event")):
+            if case in by_case:
+                v[key] = by_case[case]
+        if "score" in by_case:
+            v["serve_score"] = by_case["score"]
+
+    st = rows("serve_stacks")
+    if st:
+        v["stacks_table"] = table(
+            "<stack | <requests | n | p50 (ms) | p90 (ms) | p99 (ms) | max (ms)",
+            [[r["stack"], r["what"], r["n"], g(r["p50_ms"]), g(r["p90_ms"]), g(r["p99_ms"]), g(r["max_ms"])]
+             for r in st],
+        ) + f"\n\n1-minute load average at the start: {st[0]['load_start']} (2 cores)."
     return v
 
 
@@ -401,6 +434,8 @@ SUMMARY = [
     ("Scaling (`scaling.csv`, `.png`)", ["scaling_table"], "{scaling_table}"),
     ("Settle speed (`settle_speed.csv`; docs/settle.md)", ["settle_table"], "{settle_table}"),
     ("Scoring a 75-block save (`score_speed.csv`)", ["score_table"], "{score_table}"),
+    ("`shoha serve`, as a client sees it (`serve_latency.csv`, `.png`)", ["serve_table"], "{serve_table}"),
+    ("`shoha serve` behind four web stacks (`serve_stacks.csv`)", ["stacks_table"], "{stacks_table}"),
     (
         "A batch of 200 saves (`batch_cluster.csv`)",
         ["batch_table", "batch_compare"],
@@ -504,6 +539,25 @@ def readme_rows(v: dict[str, Any]) -> list[str]:
             f"| `shoha batch score`, 200 saves: `--workers 2` / 2-worker Dask cluster, killed half-way "
             f"and resumed | {pool:.0f} s / {dask:.0f} s | | | `batch_cluster.csv` |"
         )
+    if "serve_mini" in v:
+        r = v["serve_mini"]
+        ok = float(r["p50_ms"]) <= 2.0 and float(r["p99_ms"]) <= 10.0
+        out.append(
+            f"| `shoha serve`, 75-block `mini` session, a block laid or moved each request (httpx, "
+            f"keep-alive; load {v['serve_load']}) | p50 {float(r['p50_ms']):.2f} ms, "
+            f"p99 {float(r['p99_ms']):.2f} ms | "
+            f"2 ms / 10 ms | {'meets' if ok else 'misses'} | `serve_latency.csv` |"
+        )
+    for key, label, target in (("serve_full", "the same, 1000 blocks of `full`, a block moved", 30.0),
+                               ("serve_event", "the same, WebSocket event after a `PUT`", 15.0)):
+        if key in v:
+            p99 = float(v[key]["p99_ms"])
+            out.append(f"| {label} | p99 {p99:.2f} ms | {target:g} ms | {meets(p99, target)} | "
+                       "`serve_latency.csv` |")
+    if "serve_score" in v:
+        worst = float(v["serve_score"]["max_ms"]) / 1e3
+        out.append(f"| `POST /score` on 75 blocks, settle included (slowest of {v['serve_score']['n']}) | "
+                   f"{worst:.2f} s | 2 s | {meets(worst, 2.0)} | `serve_latency.csv` |")
     row("`make bench`, every script", "bench_minutes", "min", "run_all.csv", "{:.1f}")
     return out
 
@@ -537,7 +591,8 @@ def readme_block(v: dict[str, Any]) -> str:
         "Charts: [speed against accuracy](benchmarks/results/speed_vs_accuracy.png), "
         "[scaling](benchmarks/results/scaling.png), [settle](benchmarks/results/settle_speed.png), "
         "[optimizer quality against time](benchmarks/results/optimizer_quality.png), "
-        "[optimizer scaling](benchmarks/results/optimizer_scaling.png).",
+        "[optimizer scaling](benchmarks/results/optimizer_scaling.png), "
+        "[`shoha serve` against session size](benchmarks/results/serve_latency.png).",
     ]
     return "\n\n".join(p for p in parts if p)
 

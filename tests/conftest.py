@@ -99,3 +99,65 @@ def shoha(*args: str, cwd: Path | None = None, timeout: float = 300) -> subproce
     """Run the installed ``shoha`` console script, as a user would."""
     exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
     return subprocess.run([exe, *args], capture_output=True, text=True, cwd=cwd, timeout=timeout)
+
+
+class Served:
+    """``shoha serve`` running in a subprocess, as a user starts it; ``url`` once it answers.
+
+    ``args`` are the command-line arguments after ``serve``; the port is
+    chosen free and given with ``--port``. The process is stopped (SIGTERM,
+    then SIGKILL) when the ``with`` block ends, and its stderr is kept in
+    ``log`` for messages.
+    """
+
+    def __init__(self, *args: str, timeout: float = 60.0, env: dict[str, str] | None = None):
+        import socket
+
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            self.port = int(s.getsockname()[1])
+        self.args = [*args, "--port", str(self.port)]
+        self.url = f"http://127.0.0.1:{self.port}"
+        self.timeout = timeout
+        self.env = {**os.environ, **(env or {})}
+        self.log = ""
+
+    def __enter__(self) -> Served:
+        import time
+
+        import httpx
+
+        exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
+        self.proc = subprocess.Popen([exe, "serve", *self.args], stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.PIPE, text=True, env=self.env)
+        deadline = time.monotonic() + self.timeout
+        headers = {"Authorization": f"Bearer {self.token}"} if self.token else {}
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                self.log = self.proc.stderr.read()
+                raise RuntimeError(f"shoha serve exited {self.proc.returncode}: {self.log}")
+            try:
+                if httpx.get(self.url + "/healthz", headers=headers, timeout=1.0).status_code == 200:
+                    return self
+            except httpx.TransportError:
+                pass
+            time.sleep(0.1)
+        self.__exit__()
+        raise RuntimeError(f"shoha serve did not answer within {self.timeout} s")
+
+    @property
+    def token(self) -> str | None:
+        return self.args[self.args.index("--token") + 1] if "--token" in self.args else None
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(15)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.log = self.proc.stderr.read() if self.proc.stderr else ""

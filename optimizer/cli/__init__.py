@@ -29,6 +29,7 @@ from .porosity import porosity
 from .render import render_cmd
 from .scene import scene
 from .score import score_cmd
+from .serve import serve_cmd
 from .settle import settle_cmd
 
 
@@ -39,7 +40,7 @@ def cli() -> None:
 
 
 for _command in (block, scene, convert, porosity, check, settle_cmd, optimize_cmd, score_cmd, batch,
-                 render_cmd):
+                 render_cmd, serve_cmd):
     cli.add_command(_command)
 
 

@@ -1,0 +1,274 @@
+"""A layout kept checked as its blocks come and go, one block at a time.
+
+``shoha serve`` answers after every block a trainee lays, so nothing here
+recomputes the whole layout: each change costs the changed block and its
+neighbours. The answers are still exactly ``shoha check``'s and ``shoha
+porosity --method exact``'s on the same blocks, computed by the same functions:
+
+* **Out of tolerance**: :func:`geometry.tolerance.outside_volume` of the
+  changed block, as ``geometry.tolerance.out_of_tolerance`` does for each block.
+* **Collisions**: a :class:`geometry.collision.CollisionWorld` finds the
+  blocks the changed one touches, and the depth of each such pair is asked
+  of FCL with the pair's earlier block first, as ``shoha check``'s
+  whole-layout search asks it.
+* **Porosity** (exact): ``shoha porosity`` sums each block's volume inside the
+  design prism and, where blocks touch, unions each touching group with
+  manifold3d. A group of a settled pile can hold tens of blocks, too many to
+  union on every request. Instead the filled volume ``V(U)`` of the union ``U``
+  of all blocks, clipped to the prism, is kept, and a block ``k`` changes it by
+  inclusion and exclusion::
+
+      V(U) = V(U without k) + V(k) - V(k ∩ (union of the blocks k touches))
+
+  since ``k`` meets no block it does not touch. ``V(k)`` is
+  :func:`geometry.clip.volume_inside`; the intersection with the (few) touched
+  blocks is one manifold3d boolean, clipped to the prism like
+  ``geometry.porosity``'s unions. Taking a block out subtracts the same terms
+  with its neighbours as they stand then, so the running sum stays the
+  volume of the union: each step is exact to manifold3d's rounding
+  (about 1e-13 m³), far below the 1e-6 percentage points the state promises.
+  "Touches" is the same FCL test ``geometry.collision.overlap_groups`` uses.
+* **Above the crest** (``protruding``): the block's volume above the design
+  crest's plane ``z = height``, by manifold3d's plane trim, for blocks that
+  reach above it.
+
+World frame, metres and cubic metres throughout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import manifold3d as m3
+import numpy as np
+
+from geometry.blocks import Block
+from geometry.clip import volume_inside
+from geometry.collision import CollisionWorld
+from geometry.constants import tol
+from geometry.pose import Pose
+from geometry.scene import Scene
+from geometry.tolerance import outside_volume
+
+
+@dataclass(frozen=True)
+class Placed:
+    """One block of a live layout and what its checks found.
+
+    Attributes
+    ----------
+    id : int
+    type : str
+        Block type name, as in layout files.
+    block : Block
+    pose : Pose
+        Block frame to world frame.
+    time_s : float or None, seconds
+        When it was laid, counted from the start of the session, where the
+        client said.
+    inside_m3 : float
+        Its volume inside the design prism.
+    outside_tolerance_m3 : float
+        Its volume outside the tolerance zone (``shoha check``'s ``outside_volume_m3``).
+    above_crest_m3 : float
+        Its volume above the plane of the design crest.
+    """
+
+    id: int
+    type: str
+    block: Block
+    pose: Pose
+    time_s: float | None
+    inside_m3: float
+    outside_tolerance_m3: float
+    above_crest_m3: float
+
+
+def _solid(block: Block, pose: Pose) -> m3.Manifold:
+    """The posed block's solid, world frame."""
+    return block.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
+
+
+class LiveLayout:
+    """The blocks of one session, with their checks kept up to date.
+
+    Blocks keep the order they were first laid in (installation order); a
+    block laid again under the same id is moved where it is in that order.
+
+    Parameters
+    ----------
+    scene : Scene
+    """
+
+    def __init__(self, scene: Scene):
+        self.scene = scene
+        self._prism = scene.design.polytope
+        self._zone = scene.tolerance
+        self._crest = float(scene.design.z_top)
+        self._design_volume = scene.design_volume  # a shoelace sum each time it is asked for
+        self._world = CollisionWorld(cell=2.0 * scene.block.bounding_radius)
+        self._blocks: dict[int, Placed] = {}
+        self._touching: dict[int, set[int]] = {}
+        self._collisions: dict[tuple[int, int], float] = {}
+        self._filled = 0.0
+        #: Each block's place in the installation order; a moved block keeps its place.
+        self._seq: dict[int, int] = {}
+        self._next_seq = 0
+        #: V(k ∩ union of the blocks k touches) inside the prism, while none of them has changed.
+        self._shared_now: dict[int, float] = {}
+
+    # --- reading --------------------------------------------------------------
+
+    def __len__(self) -> int:
+        return len(self._blocks)
+
+    def __contains__(self, key: int) -> bool:
+        return key in self._blocks
+
+    def __iter__(self):
+        return iter(self._blocks.values())
+
+    def get(self, key: int) -> Placed | None:
+        return self._blocks.get(key)
+
+    def placed(self) -> list[tuple[int, Block, Pose]]:
+        """``(id, Block, Pose)`` of every block, in installation order."""
+        return [(p.id, p.block, p.pose) for p in self._blocks.values()]
+
+    @property
+    def filled_m3(self) -> float:
+        """Block volume inside the design prism, overlaps counted once, m^3."""
+        return self._filled if self._blocks else 0.0
+
+    @property
+    def porosity_percent(self) -> float:
+        """Exact porosity of the design prism, percent in [0, 100] (eq. 1 of the reference paper)."""
+        v = self._design_volume
+        return float(min(100.0, max(0.0, 100.0 * (v - self.filled_m3) / v)))
+
+    def out_of_tolerance(self) -> list[tuple[int, float]]:
+        """``(id, volume outside the tolerance zone m^3)`` of blocks out of it, in installation order."""
+        return [(p.id, p.outside_tolerance_m3) for p in self._blocks.values()
+                if p.outside_tolerance_m3 > tol.volume]
+
+    def protruding(self) -> list[int]:
+        """Ids of blocks with volume above the design crest, in installation order."""
+        return [p.id for p in self._blocks.values() if p.above_crest_m3 > tol.volume]
+
+    def collisions(self) -> list[tuple[int, int, float]]:
+        """``(a, b, depth m)`` of interpenetrating pairs, ``a < b``, sorted."""
+        return [(a, b, d) for (a, b), d in sorted(self._collisions.items())]
+
+    def collides(self, block: Block, pose: Pose) -> bool:
+        """Whether ``block`` at ``pose`` would collide with a laid block (``shoha check``'s 5 mm rule)."""
+        return bool(self._world.query(block, pose, first=True))
+
+    def touching(self, key: int) -> set[int]:
+        """Ids of the blocks that block ``key`` touches or overlaps."""
+        return set(self._touching.get(key, ()))
+
+    # --- changing -------------------------------------------------------------
+
+    def put(self, key: int, type_name: str, block: Block, pose: Pose, time_s: float | None = None) -> None:
+        """Lay block ``key`` at ``pose``, or move it there if it is laid already."""
+        if key in self._blocks:
+            self._take_out(key, keep_slot=True)
+        else:
+            self._seq[key] = self._next_seq
+            self._next_seq += 1
+        inside = volume_inside(block, pose, self._prism)
+        outside = outside_volume(block, pose, self._zone)
+        above = self._above_crest(block, pose)
+        touching = {k for k, _ in self._world.query(block, pose, exclude=(key,), threshold=-1.0)}
+        shared = self._shared(block, pose, touching)
+        self._filled += inside - shared
+        for other in touching:
+            self._shared_now.pop(other, None)
+        self._shared_now[key] = shared
+        self._blocks[key] = Placed(key, type_name, block, pose, time_s, inside, outside, above)
+        self._world.add(key, block, pose)
+        self._touching[key] = touching
+        for other in touching:
+            self._touching[other].add(key)
+        self._collide(key, touching)
+
+    def remove(self, key: int) -> None:
+        """Take block ``key`` out; a KeyError if it is not laid."""
+        self._take_out(key, keep_slot=False)
+
+    def _take_out(self, key: int, keep_slot: bool) -> None:
+        p = self._blocks[key]
+        touching = self._touching.pop(key)
+        self._world.remove(key)
+        for other in touching:
+            self._touching[other].discard(key)
+            self._collisions.pop((min(key, other), max(key, other)), None)
+        shared = self._shared_now.pop(key, None)
+        if shared is None:
+            shared = self._shared(p.block, p.pose, touching)
+        self._filled -= p.inside_m3 - shared
+        for other in touching:
+            self._shared_now.pop(other, None)
+        if keep_slot:
+            # A placeholder keeps the block's place in the installation order; put() replaces it.
+            self._blocks[key] = p
+        else:
+            del self._blocks[key]
+            del self._seq[key]
+        if not self._blocks:
+            self._filled = 0.0  # drop accumulated rounding with the last block
+
+    # --- the checks ---------------------------------------------------------
+
+    def _shared(self, block: Block, pose: Pose, touching: Iterable[int]) -> float:
+        """Volume inside the design prism that ``block`` at ``pose`` shares with the ``touching`` blocks."""
+        others = [self._blocks[k] for k in touching if k in self._blocks]
+        if not others:
+            return 0.0
+        # k ∩ (j1 ∪ j2 ...) is (k ∩ j1) ∪ (k ∩ j2) ...: each pair's intersection is small, and
+        # cheaper to take (0.14 ms for two Shake Blocks) than k against the union of all of them.
+        solid = _solid(block, pose)
+        parts = [part for part in (solid ^ _solid(o.block, o.pose) for o in others) if not part.is_empty()]
+        if not parts:
+            return 0.0
+        common = parts[0] if len(parts) == 1 else m3.Manifold.batch_boolean(parts, m3.OpType.Add)
+        # Trim by the prism's planes that the common part crosses, as geometry.porosity trims unions.
+        box = np.array(common.bounding_box()).reshape(2, 3)
+        corners = np.array([[box[i, 0], box[j, 1], box[k, 2]]
+                            for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        crossed = (corners @ self._prism.normals.T - self._prism.offsets).max(axis=0) > 0.0
+        for n, d in zip(self._prism.normals[crossed], self._prism.offsets[crossed], strict=True):
+            common = common.trim_by_plane(-n, -d)  # keep n . p <= d
+        return float(common.volume())
+
+    def _above_crest(self, block: Block, pose: Pose) -> float:
+        """Volume of the posed block above the design crest's plane, m^3."""
+        top = float((block.vertices @ pose.rotation[2] + pose.position[2]).max())
+        if top <= self._crest + tol.distance:
+            return 0.0
+        return float(_solid(block, pose).trim_by_plane(np.array([0.0, 0.0, 1.0]), self._crest).volume())
+
+    def _collide(self, key: int, touching: set[int]) -> None:
+        """Record block ``key``'s collisions with the blocks it touches, as ``shoha check`` finds them."""
+        if not touching:
+            return
+        me = self._blocks[key]
+        before = [k for k in touching if self._seq[k] < self._seq[key]]
+        after = [k for k in touching if self._seq[k] > self._seq[key]]
+        # FCL's depth of a pair depends on which block comes first (by up to 2 mm between Shake
+        # Blocks), so each pair is asked with its earlier block as the probe, as
+        # CollisionWorld.pairs asks it: this block against the later ones at once, then each
+        # earlier one against this block alone.
+        if after:
+            later = CollisionWorld(self._world.cell)
+            for k in after:
+                later.add(k, self._blocks[k].block, self._blocks[k].pose)
+            for k, depth in later.query(me.block, me.pose):
+                self._collisions[(min(key, k), max(key, k))] = depth
+        if before:
+            alone = CollisionWorld(self._world.cell)
+            alone.add(key, me.block, me.pose)
+            for k in before:
+                for _, depth in alone.query(self._blocks[k].block, self._blocks[k].pose):
+                    self._collisions[(min(key, k), max(key, k))] = depth

@@ -1,0 +1,583 @@
+"""``shoha serve``, started as a user starts it and driven over real HTTP and WebSocket.
+
+Every expectation comes from another part of shoha run on the same blocks:
+``shoha check``, ``shoha porosity --method exact``, ``shoha convert``,
+``shoha settle`` and ``shoha score``, each as its own process. None is
+written down by hand.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from geometry.layout import Layout, Placement, read_layout
+from optimizer.serve.session import world_to_unity
+from settle import settle
+from tests.conftest import Served, shoha
+from tests.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
+
+REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
+TINY = Path(__file__).parent / "data" / "tiny.toml"
+JSON = {"Content-Type": "application/json"}
+
+pytestmark = pytest.mark.timeout(600)
+
+
+@pytest.fixture(scope="module")
+def service():
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0") as served:
+        yield served
+    assert "Traceback" not in served.log, served.log[-3000:]
+
+
+@pytest.fixture
+def http(service):
+    with httpx.Client(base_url=service.url, timeout=60.0) as client:
+        yield client
+
+
+def unity_save(layout: Layout, origin=(0.0, 0.0, 0.0), with_type: bool = True) -> dict[str, Any]:
+    """A simulator save of ``layout``'s blocks (the inverse of shoha convert)."""
+    blocks = []
+    for p in layout.blocks:
+        b = world_to_unity(p.pose, np.asarray(origin, dtype=float))
+        if with_type:
+            b["type"] = p.type
+        blocks.append(b)
+    return {"blocks": blocks}
+
+
+@pytest.fixture(scope="module")
+def saves() -> dict[str, Layout]:
+    """The reference (no overlaps), a settled pile (blocks in contact) and a save with three faults."""
+    ref = read_layout(REFERENCE)
+    scene = ref.load_scene()
+    result = settle(scene, ref.placed(), seed=7)
+    settled = Layout("mini", [Placement(p.id, p.type, result.poses[p.id]) for p in ref.blocks])
+    faulty, _ = lift_out_of_tolerance(scene, ref)
+    faulty, _ = stand_on_leg_tip(scene, faulty)
+    faulty, _ = push_together(scene, faulty)
+    faulty.scene = "mini"
+    return {"reference": Layout("mini", list(ref.blocks)), "settled": settled, "faulty": faulty}
+
+
+def cli_json(*args: str) -> dict[str, Any]:
+    r = shoha(*args, "--json")
+    assert r.returncode == 0, r.stderr
+    return json.loads(r.stdout)
+
+
+def convert(tmp_path: Path, save: dict[str, Any], *extra: str) -> Path:
+    path = tmp_path / "save.json"
+    path.write_text(json.dumps(save))
+    out = tmp_path / "converted.json"
+    cli_json("convert", str(path), "--from", "unity", "--out", str(out), "--scene", "mini", *extra)
+    return out
+
+
+def new_session(http: httpx.Client, **body: Any) -> str:
+    r = http.post("/sessions", json={"scene": "mini", **body})
+    assert r.status_code == 201, r.text
+    return r.json()["session"]
+
+
+def put(http: httpx.Client, sid: str, key: int, body: dict[str, Any]) -> dict[str, Any]:
+    r = http.put(f"/sessions/{sid}/blocks/{key}", json=body)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def steady(state: dict[str, Any]) -> dict[str, Any]:
+    """A state without the keys that change with every answer."""
+    return {k: v for k, v in state.items() if k != "seconds"}
+
+
+# --- the checks, block by block, against the CLI --------------------------------------------
+
+
+@pytest.mark.parametrize("name", ["reference", "settled", "faulty"])
+def test_a_save_laid_block_by_block_checks_as_shoha_check_does(http, saves, tmp_path, name):
+    save = unity_save(saves[name])
+    layout_path = convert(tmp_path, save)
+    check = cli_json("check", str(layout_path))
+    exact = cli_json("porosity", str(layout_path), "--method", "exact")
+    sid = new_session(http)
+    # Lay every block, some first in the wrong place and then moved, and one extra block
+    # laid and taken out again, so that moves and removals are checked as well as lays.
+    for i, block in enumerate(save["blocks"]):
+        if i % 7 == 3:
+            wrong = json.loads(json.dumps(block))
+            wrong["position"]["x"] += 0.35
+            put(http, sid, i, wrong)
+        if i == 20:
+            put(http, sid, 9999, save["blocks"][0])
+    for i, block in enumerate(save["blocks"]):
+        state = put(http, sid, i, block)
+    r = http.delete(f"/sessions/{sid}/blocks/9999")
+    assert r.status_code == 200, r.text
+    state = r.json()
+
+    assert state["porosity_percent"] == pytest.approx(exact["porosity_percent"], abs=1e-6)
+    assert state["porosity_percent"] == pytest.approx(check["porosity_percent"], abs=1e-6)
+    for key in ("blocks", "required_blocks", "remaining_blocks"):
+        assert state[key] == check[key], key
+    assert [o["id"] for o in state["out_of_tolerance"]] == [o["id"] for o in check["out_of_tolerance"]]
+    np.testing.assert_allclose([o["outside_volume_m3"] for o in state["out_of_tolerance"]],
+                               [o["outside_volume_m3"] for o in check["out_of_tolerance"]], rtol=1e-9)
+    assert [(c["a"], c["b"]) for c in state["collisions"]] == [(c["a"], c["b"]) for c in check["collisions"]]
+    np.testing.assert_allclose([c["depth_m"] for c in state["collisions"]],
+                               [c["depth_m"] for c in check["collisions"]], rtol=1e-9, atol=1e-12)
+    if name == "faulty":
+        assert check["out_of_tolerance"] and check["collisions"]  # the save has the faults put in
+    if name == "settled":
+        # Blocks at rest touch: the exact porosity unions them, and so must the service.
+        r = shoha("porosity", str(layout_path), "--method", "exact", "--json")
+        assert json.loads(r.stdout)["porosity_percent"] == pytest.approx(state["porosity_percent"], abs=1e-6)
+    # The whole save at once gives the same state.
+    r = http.put(f"/sessions/{sid}/layout", json=save)
+    assert r.status_code == 200, r.text
+    whole = r.json()
+    assert whole["porosity_percent"] == pytest.approx(state["porosity_percent"], abs=1e-9)
+    assert whole["out_of_tolerance"] == state["out_of_tolerance"]
+    assert [(c["a"], c["b"]) for c in whole["collisions"]] == [(c["a"], c["b"]) for c in state["collisions"]]
+    np.testing.assert_allclose([c["depth_m"] for c in whole["collisions"]],
+                               [c["depth_m"] for c in state["collisions"]], rtol=1e-9, atol=1e-12)
+
+
+def test_protruding_lists_the_blocks_above_the_crest(http, saves):
+    layout = saves["faulty"]
+    sid = new_session(http, frame="world")
+    scene = read_layout(REFERENCE).load_scene()
+    for p in layout.blocks:
+        state = put(http, sid, p.id, {"position": list(p.pose.position),
+                                      "quaternion": list(p.pose.quaternion)})
+    crest = scene.design.z_top
+    block = scene.block
+    above = [p.id for p in layout.blocks if p.pose.apply(block.vertices)[:, 2].max() > crest + 1e-6]
+    # A block whose highest vertex is above the crest has volume above it, and no other has.
+    assert state["protruding"] == above
+    assert above, "the faulty save lifts a block above the crest"
+
+
+def test_unity_input_converts_as_shoha_convert_does(http, saves, tmp_path):
+    origin = (1.5, -2.0, 0.25)
+    save = unity_save(saves["faulty"], origin=(0.0, 0.0, 0.0), with_type=False)
+    layout_path = convert(tmp_path, save, "--origin", "1.5,-2,0.25")
+    sid = new_session(http, origin=list(origin))
+    for i, block in enumerate(save["blocks"]):
+        put(http, sid, i, block)
+    served = http.get(f"/sessions/{sid}/layout").json()
+    converted = json.loads(layout_path.read_text())
+    assert served["blocks"] == converted["blocks"]
+
+
+# --- hints ---------------------------------------------------------------------------------------
+
+
+def test_hints_laid_as_given_are_valid(http, tmp_path):
+    """Twelve hints in a row, each laid as given (Unity frame, origin moved): none collides or sticks out,
+    and the blocks stand."""
+    sid = new_session(http, origin=[2.0, -1.0, 0.5])
+    ids = []
+    for i in range(12):
+        hint = http.get(f"/sessions/{sid}/hint").json()
+        assert hint["status"] == "ready" and hint["source"] == "reference", hint
+        assert hint["plan_id"] not in ids
+        ids.append(hint["plan_id"])
+        state = put(http, sid, i, hint["block"])
+        assert state["collisions"] == [] and state["out_of_tolerance"] == [], state
+        assert state["blocks"] == i + 1
+    path = tmp_path / "hinted.json"
+    path.write_text(json.dumps(http.get(f"/sessions/{sid}/layout").json()))
+    check = cli_json("check", str(path))
+    assert check["collisions"] == [] and check["out_of_tolerance"] == []
+    settled = cli_json("settle", str(path))
+    assert settled["stable"], settled
+
+
+def test_a_taken_place_is_not_hinted(http):
+    """A block laid 30 cm from the first reference block takes its place: the hint moves on, and is valid."""
+    first = read_layout(REFERENCE).blocks[0]
+    sid = new_session(http, frame="world")
+    put(http, sid, 0, {"position": list(first.pose.position + [0.0, 0.3, 0.0]),
+                       "quaternion": list(first.pose.quaternion)})
+    hint = http.get(f"/sessions/{sid}/hint").json()
+    assert hint["status"] == "ready" and hint["plan_id"] != first.id
+    state = put(http, sid, 1, hint["block"])
+    assert state["collisions"] == [] and state["out_of_tolerance"] == []
+
+
+# --- bad input ----------------------------------------------------------------------------------
+
+BLOCK = {"position": {"x": 0.0, "y": 0.9, "z": 6.0}, "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}
+
+
+def _body(**change: Any) -> bytes:
+    return json.dumps({**BLOCK, **change}).encode()
+
+
+BAD = [
+    # (what, method, path under the session or absolute, body, headers, status)
+    ("malformed JSON", "PUT", "blocks/5", b'{"position": {"x": 1', JSON, 400),
+    ("NaN", "PUT", "blocks/5", b'{"position": {"x": NaN, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, '
+                               b'"z": 0, "w": 1}}', JSON, 400),
+    ("Infinity", "PUT", "blocks/5", _body().replace(b"0.9", b"Infinity"), JSON, 400),
+    ("a number too large for a float", "PUT", "blocks/5", _body().replace(b"0.9", b"1e400"), JSON, 400),
+    ("nesting too deep", "PUT", "blocks/5", b"[" * 100_000 + b"]" * 100_000, JSON, 400),
+    ("not UTF-8", "PUT", "blocks/5", b'{"type": "\xff"}', JSON, 400),
+    ("an empty body", "PUT", "blocks/5", b"", JSON, 400),
+    ("a list, not an object", "PUT", "blocks/5", b"[1, 2, 3]", JSON, 422),
+    ("a position of the wrong type", "PUT", "blocks/5", _body(position="here"), JSON, 422),
+    ("a missing rotation", "PUT", "blocks/5", json.dumps({"position": BLOCK["position"]}).encode(), JSON,
+     422),
+    ("a world quaternion in a Unity session", "PUT", "blocks/5",
+     json.dumps({"position": BLOCK["position"], "quaternion": [1, 0, 0, 0]}).encode(), JSON, 422),
+    ("a rotation that is not a unit quaternion", "PUT", "blocks/5",
+     _body(rotation={"x": 0.5, "y": 0.0, "z": 0.0, "w": 0.5}), JSON, 422),
+    ("a boolean for a number", "PUT", "blocks/5", _body(position={"x": True, "y": 0, "z": 0}), JSON, 422),
+    ("an unknown block type", "PUT", "blocks/5", _body(type="concrete-cube"), JSON, 422),
+    ("a mesh path of the client's choosing", "PUT", "blocks/5", _body(type="mesh:/etc/passwd"), JSON, 422),
+    ("a new parametric size", "PUT", "blocks/5", _body(type="tetrapod:3.7"), JSON, 422),
+    ("an unknown key", "PUT", "blocks/5", _body(colour="red"), JSON, 422),
+    ("a negative time", "PUT", "blocks/5", _body(time_s=-1), JSON, 422),
+    ("a time as text", "PUT", "blocks/5", _body(time_s="soon"), JSON, 422),
+    ("a position a million km away", "PUT", "blocks/5",
+     _body(position={"x": 1e9, "y": 0, "z": 0}), JSON, 422),
+    ("a block id that is not a number", "PUT", "blocks/five", _body(), JSON, 422),
+    ("a block id too large", "PUT", "blocks/99999999999999999999", _body(), JSON, 422),
+    ("no content type", "PUT", "blocks/5", _body(), {}, 415),
+    ("a form, not JSON", "PUT", "blocks/5", _body(), {"Content-Type": "application/x-www-form-urlencoded"},
+     415),
+    ("a body over the limit", "PUT", "blocks/5", b" " * (4 * 1024 * 1024 + 1) + _body(), JSON, 413),
+    ("a save of too many blocks", "PUT", "layout", json.dumps({"blocks": [BLOCK] * 5001}).encode(), JSON,
+     422),
+    ("a save with one bad block", "PUT", "layout",
+     json.dumps({"blocks": [BLOCK, BLOCK, {**BLOCK, "rotation": {"x": 0, "y": 0, "z": 0, "w": 3}}]}).encode(),
+     JSON, 422),
+    ("a layout whose scene is a path", "PUT", "layout",
+     json.dumps({"format": "shoha-layout/1", "scene": "/etc/passwd", "blocks": []}).encode(), JSON, 422),
+    ("a layout with a mesh path", "PUT", "layout",
+     json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [
+         {"id": 0, "type": "mesh:/etc/hostname", "position": [0, 6, 1],
+          "quaternion": [1, 0, 0, 0]}]}).encode(),
+     JSON, 422),
+    ("a save whose elapsed_s is before a block's time_s", "PUT", "layout",
+     json.dumps({"blocks": [{**BLOCK, "time_s": 50.0}], "elapsed_s": 40.0}).encode(), JSON, 422),
+    ("a layout of another format", "PUT", "layout",
+     json.dumps({"format": "shoha-layout/9", "scene": "mini", "blocks": []}).encode(), JSON, 422),
+    ("a block not laid", "DELETE", "blocks/77", None, {}, 404),
+    ("an unknown scene", "POST", "/sessions", json.dumps({"scene": "atlantis"}).encode(), JSON, 422),
+    ("a scene that is a path", "POST", "/sessions", json.dumps({"scene": "/etc/passwd"}).encode(), JSON, 422),
+    ("an unknown frame", "POST", "/sessions", json.dumps({"scene": "mini", "frame": "mars"}).encode(), JSON,
+     422),
+    ("an origin of two numbers", "POST", "/sessions",
+     json.dumps({"scene": "mini", "origin": [1, 2]}).encode(), JSON, 422),
+    ("an unknown session", "GET", "/sessions/no-such-session", None, {}, 404),
+    ("a block for an unknown session", "PUT", "/sessions/no-such-session/blocks/1", _body(), JSON, 404),
+    ("an unknown endpoint", "GET", "/sessions/{sid}/nothing", None, {}, 404),
+    ("a method not allowed", "PATCH", "/sessions/{sid}", None, {}, 405),
+]
+
+
+@pytest.fixture(scope="module")
+def busy_session(service):
+    """A session with three blocks, one of them moved, to refuse bad requests against."""
+    with httpx.Client(base_url=service.url, timeout=60.0) as http:
+        sid = new_session(http)
+        layout = read_layout(REFERENCE)
+        save = unity_save(layout)
+        for i in range(3):
+            put(http, sid, i, {**save["blocks"][i], "time_s": 10.0 * (i + 1)})
+        return sid
+
+
+@pytest.mark.parametrize("what, method, path, body, headers, status", BAD, ids=[b[0] for b in BAD])
+def test_bad_input_is_refused_and_changes_nothing(service, http, busy_session, what, method, path, body,
+                                                    headers, status):
+    sid = busy_session
+    before = http.get(f"/sessions/{sid}").json()
+    url = path.replace("{sid}", sid) if path.startswith("/") else f"/sessions/{sid}/{path}"
+    r = http.request(method, url, content=body, headers=headers)
+    assert r.status_code == status, (what, r.status_code, r.text[:300])
+    error = r.json()["error"]
+    assert isinstance(error, str) and error and "\n" not in error
+    assert "Traceback" not in error
+    assert http.get("/healthz").json() == {"status": "ok"}
+    after = http.get(f"/sessions/{sid}").json()
+    assert steady(after) == steady(before), what
+    assert service.alive()
+
+
+def test_times_give_elapsed_and_blocks_per_hour(http, busy_session):
+    state = http.get(f"/sessions/{busy_session}").json()
+    assert state["elapsed_s"] == 30.0
+    assert state["blocks_per_hour"] == pytest.approx(3 / 30.0 * 3600.0)
+    sid = new_session(http)
+    state = put(http, sid, 0, BLOCK)
+    assert state["elapsed_s"] is None and state["blocks_per_hour"] is None
+    r = http.put(f"/sessions/{sid}/layout",
+                 json={"blocks": [BLOCK, {**BLOCK, "time_s": 40.0}], "elapsed_s": 90.0})
+    assert r.json()["elapsed_s"] == 90.0 and r.json()["blocks_per_hour"] == pytest.approx(2 / 90 * 3600)
+
+
+# --- the socket, the schema, the page -------------------------------------------------------------
+
+
+def test_every_change_is_sent_to_watchers(service, http):
+    from websockets.sync.client import connect
+
+    sid = new_session(http, frame="world")
+    with connect(service.url.replace("http", "ws") + f"/sessions/{sid}/events") as ws:
+        first = json.loads(ws.recv(timeout=10))
+        assert first["blocks"] == 0 and first["replaced"] is True
+        pose = read_layout(REFERENCE).blocks[0].pose
+        state = put(http, sid, 4, {"position": list(pose.position), "quaternion": list(pose.quaternion)})
+        event = json.loads(ws.recv(timeout=10))
+        assert steady({k: event[k] for k in state}) == steady(state)
+        assert event["changed"] == [{"id": 4, "type": "shake-4t", "position": list(pose.position),
+                                     "quaternion": list(pose.quaternion)}]
+        http.delete(f"/sessions/{sid}/blocks/4")
+        event = json.loads(ws.recv(timeout=10))
+        assert event["removed"] == [4] and event["blocks"] == 0
+        http.put(f"/sessions/{sid}/blocks/4", content=b"{bad", headers=JSON)  # refused: no event
+        assert http.delete(f"/sessions/{sid}").status_code == 204
+        with pytest.raises(Exception):  # noqa: B017 - the session's end closes the socket
+            ws.recv(timeout=10)
+    from websockets.exceptions import ConnectionClosedError
+
+    with connect(service.url.replace("http", "ws") + "/sessions/nope/events") as ws:
+        assert "no session" in json.loads(ws.recv(timeout=10))["error"]
+        with pytest.raises(ConnectionClosedError) as closed:
+            ws.recv(timeout=10)
+        assert closed.value.rcvd.code == 4404
+
+
+def test_openapi_lists_every_endpoint(http):
+    paths = http.get("/openapi.json").json()["paths"]
+    for path, method in [("/healthz", "get"), ("/scenes", "get"), ("/sessions", "post"),
+                         ("/sessions/{sid}", "get"), ("/sessions/{sid}", "delete"),
+                         ("/sessions/{sid}/blocks/{block}", "put"),
+                         ("/sessions/{sid}/blocks/{block}", "delete"),
+                         ("/sessions/{sid}/layout", "put"), ("/sessions/{sid}/score", "post"),
+                         ("/sessions/{sid}/hint", "get"), ("/sessions/{sid}/view", "get"),
+                         ("/sessions/{sid}/events", "get"), ("/openapi.json", "get")]:
+        assert method in paths[path], (path, method)
+
+
+def test_scenes_have_the_keys_of_scene_info(http):
+    scenes = {s["name"]: s for s in http.get("/scenes").json()["scenes"]}
+    info = cli_json("scene", "info", "mini")
+    assert {k: scenes["mini"][k] for k in info} == info
+    assert scenes["mini"]["reference"]["blocks"] == len(read_layout(REFERENCE).blocks)
+    assert scenes["full"]["reference"] is None
+
+
+def test_the_view_is_one_offline_page(http):
+    sid = new_session(http)
+    page = http.get(f"/sessions/{sid}/view")
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    assert "http://" not in page.text and "https://" not in page.text
+    assert '<script src="/static/plotly.js">' in page.text
+    js = http.get("/static/plotly.js")
+    assert js.status_code == 200 and b"plotly" in js.content[:2000].lower()
+
+
+def test_view_follows_the_session_started_last(http):
+    sid = new_session(http)
+    r = http.get("/view", params={"token": "x"}, follow_redirects=False)
+    assert r.status_code == 307 and r.headers["location"] == f"/sessions/{sid}/view?token=x"
+
+
+def test_open_shows_the_view_in_the_browser(tmp_path):
+    """``--open`` hands /view to the default browser ($BROWSER here: a script that notes the address)."""
+    noted = tmp_path / "opened.txt"
+    browser = f"{sys.executable} -c \"import sys; open(r'{noted}', 'w').write(sys.argv[1])\" %s"
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0", "--open",
+                env={"BROWSER": browser}) as served, httpx.Client(base_url=served.url) as http:
+        deadline = time.monotonic() + 60
+        while not noted.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert noted.read_text() == f"{served.url}/view"
+        waiting = http.get("/view")  # no session yet: a page that looks again
+        assert waiting.status_code == 200 and 'http-equiv="refresh"' in waiting.text
+        sid = new_session(http)
+        assert http.get("/view", follow_redirects=False).headers["location"] == f"/sessions/{sid}/view"
+
+
+def test_score_is_shoha_score(http, saves, tmp_path):
+    save = unity_save(saves["faulty"])
+    path = tmp_path / "save.json"
+    path.write_text(json.dumps(save))
+    cli = cli_json("score", str(path), "--reference", str(REFERENCE), "--from", "unity")
+    sid = new_session(http)
+    assert http.put(f"/sessions/{sid}/layout", json=save).status_code == 200
+    r = http.post(f"/sessions/{sid}/score")
+    assert r.status_code == 200, r.text
+    served = r.json()
+    for key in ("score", "porosity_percent", "out_of_tolerance", "collisions", "stable", "unstable_blocks",
+                "penalties", "blocks", "required_blocks"):
+        assert served[key] == cli[key], key
+    # The view learns which blocks were unstable.
+    assert http.get(f"/sessions/{sid}").json()["unstable"] == sorted(cli["unstable_blocks"])
+
+
+# --- options: token, host, limits, background references --------------------------------------
+
+
+def test_a_request_without_the_token_is_refused(tmp_path):
+    from websockets.sync.client import connect
+
+    token = "s3cret-token-for-tests"
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0", "--token", token) as served:
+        with httpx.Client(base_url=served.url) as http:
+            assert http.get("/healthz").status_code == 401
+            assert http.get("/healthz", headers={"Authorization": "Bearer wrong-token"}).status_code == 401
+            assert http.post("/sessions", json={"scene": "mini"}).status_code == 401
+            auth = {"Authorization": f"Bearer {token}"}
+            r = http.post("/sessions", json={"scene": "mini"}, headers=auth)
+            assert r.status_code == 201
+            sid = r.json()["session"]
+            assert http.get(f"/sessions/{sid}/view").status_code == 401
+            assert http.get(f"/sessions/{sid}/view?token={token}").status_code == 200
+            # A token in the query is for pages and sockets only, not for changes.
+            r = http.put(f"/sessions/{sid}/blocks/0", json=BLOCK, params={"token": token})
+            assert r.status_code == 401
+            ws_url = served.url.replace("http", "ws") + f"/sessions/{sid}/events"
+            with pytest.raises(Exception):  # noqa: B017 - refused before the handshake completes
+                with connect(ws_url) as ws:
+                    ws.recv(timeout=5)
+            with connect(ws_url + f"?token={token}") as ws:
+                assert json.loads(ws.recv(timeout=10))["session"] == sid
+
+
+def test_cors_is_off_unless_an_origin_is_named(service):
+    game = "http://localhost:8000"
+    preflight = {"Origin": game, "Access-Control-Request-Method": "PUT",
+                 "Access-Control-Request-Headers": "authorization, content-type"}
+    r = httpx.options(service.url + "/sessions/x/blocks/0", headers=preflight)
+    assert "access-control-allow-origin" not in r.headers
+    assert "access-control-allow-origin" not in httpx.get(service.url + "/healthz",
+                                                          headers={"Origin": game}).headers
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0", "--cors", game,
+                "--token", "cors-token-123") as served:
+        # The preflight carries no token, and is answered; the request after it needs the token.
+        r = httpx.options(served.url + "/sessions/x/blocks/0", headers=preflight)
+        assert r.status_code == 200 and r.headers["access-control-allow-origin"] == game
+        assert "PUT" in r.headers["access-control-allow-methods"]
+        r = httpx.options(served.url + "/sessions/x/blocks/0",
+                          headers={**preflight, "Origin": "http://evil.example"})
+        assert r.headers.get("access-control-allow-origin") != "http://evil.example"
+        r = httpx.get(served.url + "/healthz",
+                      headers={"Origin": game, "Authorization": "Bearer cors-token-123"})
+        assert r.status_code == 200 and r.headers["access-control-allow-origin"] == game
+        assert httpx.get(served.url + "/healthz", headers={"Origin": game}).status_code == 401
+
+
+def test_any_host_but_localhost_needs_a_token():
+    r = shoha("serve", "--host", "0.0.0.0", "--port", "8799", timeout=60)
+    assert r.returncode == 2
+    assert len(r.stderr.strip().splitlines()) == 1 and "--token" in r.stderr
+
+
+def test_a_page_of_another_origin_cannot_watch(service, http):
+    from websockets.sync.client import connect
+
+    sid = new_session(http)
+    url = service.url.replace("http", "ws") + f"/sessions/{sid}/events"
+    with pytest.raises(Exception):  # noqa: B017
+        with connect(url, origin="http://evil.example") as ws:
+            ws.recv(timeout=5)
+    with connect(url, origin=service.url) as ws:  # the view's own origin
+        assert json.loads(ws.recv(timeout=10))["session"] == sid
+    r = httpx.get(service.url + "/healthz", headers={"Host": "evil.example"})
+    assert r.status_code == 421
+
+
+def test_sessions_are_bounded_and_expire():
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0", "--max-sessions", "2",
+                "--idle-timeout", "2") as served:
+        with httpx.Client(base_url=served.url) as http:
+            first = new_session(http)
+            new_session(http)
+            r = http.post("/sessions", json={"scene": "mini"})
+            assert r.status_code == 503 and "sessions" in r.json()["error"]
+            time.sleep(2.5)
+            assert http.get(f"/sessions/{first}").status_code == 404
+            new_session(http)
+
+
+def test_a_reference_is_computed_in_the_background_and_cached():
+    """A scene served with no reference gets one from optimize(seed=0), cached; null until then."""
+    args = (str(TINY), "--reference-time-limit", "10")
+    with Served(*args) as served, httpx.Client(base_url=served.url) as http:
+        sid = http.post("/sessions", json={"scene": "tiny"}).json()["session"]
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline:
+            state = http.get(f"/sessions/{sid}").json()
+            if state["reference"] is not None:
+                break
+            assert http.get(f"/sessions/{sid}/hint").json()["status"] == "pending"
+            time.sleep(1.0)
+        assert state["reference"] is not None and state["reference"]["source"] == "computed"
+        hint = http.get(f"/sessions/{sid}/hint").json()
+        assert hint["status"] == "ready"
+    cached = list((Path(os.environ["SHOHA_CACHE"]) / "references").glob("tiny-*.json"))
+    assert len(cached) == 1 and read_layout(cached[0]).load_scene().name == "tiny"
+    # Started again, the cached reference is there from the first answer on.
+    with Served(*args) as served, httpx.Client(base_url=served.url) as http:
+        scenes = {s["name"]: s for s in http.get("/scenes").json()["scenes"]}
+        assert scenes["tiny"]["reference"] == state["reference"]
+
+
+def test_the_help_does_not_import_the_service():
+    """``shoha --help`` stays quick: the service and its web stack are imported by the command only."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from optimizer.cli import cli; "
+            "print(any(m.startswith(('optimizer.serve', 'starlette', 'uvicorn')) for m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "False", out.stderr
+
+
+# --- anything at all ---------------------------------------------------------------------------
+
+_SCALARS = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70),
+                     st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=12))
+_JSON = st.recursive(_SCALARS, lambda inner: st.one_of(
+    st.lists(inner, max_size=4),
+    st.dictionaries(st.sampled_from(["x", "y", "z", "w", "position", "rotation", "quaternion", "type",
+                                     "time_s", "blocks", "format", "scene", "elapsed_s", "id"])
+                    | st.text(max_size=6), inner, max_size=5)), max_leaves=20)
+
+
+@pytest.fixture(scope="module")
+def scratch_session(service):
+    with httpx.Client(base_url=service.url, timeout=60.0) as http:
+        return new_session(http)
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(body=_JSON, where=st.sampled_from(["blocks/3", "layout", "/sessions"]))
+def test_no_body_makes_the_service_fail(service, http, scratch_session, body, where):
+    """Whatever JSON arrives, the answer is a state or a 4xx with one line, never a 500."""
+    url = where if where.startswith("/") else f"/sessions/{scratch_session}/{where}"
+    method = "POST" if where.startswith("/") else "PUT"
+    r = http.request(method, url, content=json.dumps(body).encode(), headers=JSON)
+    assert r.status_code in (200, 201, 400, 404, 413, 415, 422, 503), (body, r.status_code, r.text[:300])
+    if r.status_code >= 400:
+        assert "\n" not in r.json()["error"]
+    if where == "/sessions" and r.status_code == 201:
+        http.delete(f"/sessions/{r.json()['session']}")
+    assert service.alive()
