@@ -218,6 +218,35 @@ def test_a_taken_place_is_not_hinted(http):
     assert state["collisions"] == [] and state["out_of_tolerance"] == []
 
 
+def test_a_replan_takes_over_when_no_reference_block_fits(tmp_path):
+    """Served with a reference of only 10 blocks, a trainee who has laid those 10 gets the next
+    hints from a re-plan around them (``optimize(keep=...)`` in the background): pending, then
+    ready; laid as given, they collide with nothing and stick out nowhere."""
+    from geometry.layout import write_layout
+
+    short = tmp_path / "short.json"
+    write_layout(Layout("mini", read_layout(REFERENCE).blocks[:10]), short)
+    with Served("--reference", str(short), "--reference-time-limit", "0") as served, \
+            httpx.Client(base_url=served.url, timeout=60.0) as http:
+        sid = new_session(http, frame="world")
+        for i in range(10):
+            hint = http.get(f"/sessions/{sid}/hint").json()
+            assert hint["status"] == "ready" and hint["source"] == "reference", hint
+            put(http, sid, i, hint["block"])
+        deadline = time.monotonic() + 300
+        hint = http.get(f"/sessions/{sid}/hint").json()
+        assert hint["source"] == "replan" and hint["status"] == "pending", hint
+        while hint["status"] == "pending" and time.monotonic() < deadline:
+            time.sleep(1.0)
+            hint = http.get(f"/sessions/{sid}/hint").json()
+        for i in range(10, 13):
+            assert hint["status"] == "ready" and hint["source"] == "replan", hint
+            state = put(http, sid, i, hint["block"])
+            assert state["collisions"] == [] and state["out_of_tolerance"] == [], state
+            hint = http.get(f"/sessions/{sid}/hint").json()
+    assert "Traceback" not in served.log, served.log[-3000:]
+
+
 # --- bad input ----------------------------------------------------------------------------------
 
 BLOCK = {"position": {"x": 0.0, "y": 0.9, "z": 6.0}, "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}

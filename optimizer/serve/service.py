@@ -40,7 +40,7 @@ from .bodies import (
 from .hint import PlanBlock, first_fitting
 from .live import LiveLayout
 from .session import IDLE_SECONDS, MAX_SESSIONS, QUEUE_EVENTS, Session, SessionStore
-from .workers import Workers, optimize_keeps, reference_cache
+from .workers import Workers, reference_cache
 
 log = logging.getLogger("shoha.serve")
 
@@ -145,7 +145,6 @@ class Service:
         self.reference_seconds = reference_seconds
         self.store = SessionStore(max_sessions, idle_s)
         self.workers: Workers | None = None
-        self.can_replan = optimize_keeps()
         self._replans: dict[str, tuple[int, Future[dict[str, Any]] | None, list[PlanBlock]]] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
         self.latest: str | None = None
@@ -350,11 +349,6 @@ class Service:
 
     def _replan_hint(self, session: Session, started: float) -> dict[str, Any]:
         """No reference block fits: a re-plan around the laid blocks, made in the background."""
-        if not self.can_replan:
-            return {"block": None, "source": "replan", "status": "unavailable",
-                    "message": "no reference block fits, and this shoha cannot re-plan "
-                               "(optimize takes no keep yet)",
-                    "seconds": time.perf_counter() - started}
         version, future, plan = self._replans.get(session.id, (-1, None, []))
         failed = future is not None and future.done() and future.exception() is not None
         if failed and version == session.version:

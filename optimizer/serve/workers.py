@@ -8,8 +8,8 @@ Three kinds of job leave the service's own process:
 * **scores**: ``POST /sessions/{id}/score``, a physics settle of about a
   second;
 * **re-plans**: ``optimize(scene, keep=...)`` around a trainee's blocks, for
-  hints once the layout has left the reference behind (only where
-  ``optimizer.api.optimize`` takes ``keep``).
+  hints once the layout has left the reference behind (``shoha optimize
+  --keep``'s library side).
 
 A thread would not do: these are Python and NumPy work that holds the GIL for
 milliseconds at a time, and every request would wait behind it. Each pool is
@@ -27,7 +27,6 @@ paths the service chose, layout dicts), never a client's path.
 from __future__ import annotations
 
 import hashlib
-import inspect
 import os
 import threading
 import time
@@ -62,13 +61,6 @@ def _lower_priority() -> None:
         os.nice(CHILD_NICENESS)
     except OSError:  # pragma: no cover - nice is best effort
         pass
-
-
-def optimize_keeps() -> bool:
-    """Whether ``optimizer.api.optimize`` takes ``keep`` (a partial layout to keep and build on)."""
-    from optimizer.api import optimize
-
-    return "keep" in inspect.signature(optimize).parameters
 
 
 def reference_cache(scene: Scene, time_limit: float | None) -> Path:
@@ -126,7 +118,7 @@ def replan(source: str, kept: dict[str, Any], time_limit: float) -> dict[str, An
 
     scene = _load_scene(source)
     layout = layout_from_dict(kept, "kept blocks", scene.base_dir)
-    result = optimize(scene, seed=0, time_limit=time_limit, keep=layout)  # type: ignore[call-arg]
+    result = optimize(scene, seed=0, time_limit=time_limit, keep=layout.blocks)
     return result.layout.to_dict()
 
 
@@ -159,8 +151,7 @@ def score_layout(source: str, blocks: dict[str, Any], ref_key: str, reference: d
     scene = _load_scene(source)
     ref = _reference(source, ref_key, reference)
     layout = layout_from_dict(blocks, "session", scene.base_dir)
-    timed = {"elapsed_s": elapsed_s} if "elapsed_s" in inspect.signature(score).parameters else {}
-    return score(scene, layout.placed(), ref, **timed).to_dict()
+    return score(scene, layout.placed(), ref, elapsed_s=elapsed_s).to_dict()
 
 
 def warm(items: list[tuple[str, str, dict[str, Any]]]) -> int:
