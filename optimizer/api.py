@@ -142,6 +142,8 @@ class OptimizeResult:
     coverage : dict or None
         ``shoha check``'s coverage object (bare share, largest bare distance,
         where it is); None when the time limit left no room to measure it.
+    time_limit_s : float
+        The limit the run had (the default one unless given).
     kept : dict or None
         With ``keep``: how many blocks were kept, and the ids of those among
         them that collide, stick out of the tolerance zone or fail the settle
@@ -164,6 +166,7 @@ class OptimizeResult:
     path: str | None = None
     coverage: dict[str, Any] | None = None
     kept: dict[str, Any] | None = None
+    time_limit_s: float | None = None
 
     @property
     def valid(self) -> bool:
@@ -211,6 +214,7 @@ class OptimizeResult:
             "out_of_tolerance": self.out_of_tolerance,
             "stable": self.stable,
             "seconds": self.seconds,
+            "time_limit_s": self.time_limit_s,
             "path": self.path,
             "valid": self.valid,
             "outside_design_prism_m3": self.outside_design_prism_m3,
@@ -363,6 +367,7 @@ def optimize(
         outside_design_prism_m3=max(0.0, report_.blocks * scene.block.volume
                               - (1 - report_.porosity_percent / 100) * scene.design_volume),
         coverage=report_.coverage.to_dict() if report_.coverage is not None else None,
+        time_limit_s=time_limit,
         kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
         if keep else None,
     )

@@ -123,8 +123,9 @@ class Confirmation:
     unstable : list of int
         Crane-order indices of the blocks that failed it (empty when stable).
     adopted : int
-        Times the layout was taken where a failed settle left it (before any
-        repair of that round).
+        Times the layout was taken where a settle left it: where a failed
+        settle left it (before any repair of that round), and where the last
+        one left it once it stands.
     rounds : int
         Repair rounds run.
     repaired : int
@@ -174,8 +175,11 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             ) -> tuple[Build, Confirmation]:
     """Settle a build; repair and settle again while blocks fail.
 
-    A failed settle is first taken at its word: the layout where it left
-    the blocks (:func:`settled_layout`), settled again. If that fails too,
+    A layout that stands is returned where the settle left it, if that is
+    valid and stands too (the blocks rest on what carries them, not at the
+    first contact of their drop). A failed settle is first taken at its
+    word: the layout where it left the blocks (:func:`settled_layout`),
+    settled again. If that fails too,
     the round takes the failed blocks out, with every block resting on
     them. If a repair and one more settle fit before ``end`` (a
     ``problem.now()`` value; a repair gets at most half the time left
@@ -194,7 +198,18 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
         t = problem.now()
         result = settle(problem.scene, build.placed(), seed=int(rng.integers(2**31)))
         cost = problem.now() - t
-        if result.stable or not len(build):
+        if not len(build):
+            break
+        if result.stable:
+            # A layout that stands is written where it stands: each block settled onto what
+            # carries it, touching it, rather than at its first contact on the way down
+            # (the interlock count sees the difference). Only if that is valid and stands.
+            left = (end if end is not None else problem.deadline) - problem.now()
+            if left > 2 * cost:
+                after, verdict = settled_layout(problem, build, result, rng)
+                if len(after) == len(build) and verdict.stable:
+                    build, result = after, verdict
+                    adopted += 1
             break
         # Kept blocks (a partial layout's) are never taken out: if only they fail, the
         # verdict stands as it is and the caller reports them.
