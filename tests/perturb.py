@@ -7,10 +7,11 @@ Each function returns a new layout (same scene, same ids, same extra keys)
 and the ids it touched; the input is never changed.
 
 Which block gets each fault is decided by a written rule on the geometry, so
-that the same reference always gives the same exercise. None of the rules
-runs a physics settle: whether a fault is *only* that fault (a block lifted
-out of tolerance that still stands, say) is for the scorer to find, and for
-the tests to check.
+that the same reference always gives the same exercise. Only
+:func:`stand_on_leg_tip` runs a physics settle, of its one block, to be sure
+the block it sets on a tip falls. Whether a fault is *only* that fault (a
+block lifted out of tolerance that still stands, say) is for the scorer to
+find, and for the tests to check.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from geometry.blocks import get_block
+from geometry.blocks import Block, get_block
 from geometry.errors import InputError
 from geometry.layout import Layout, Placement
 from geometry.pose import Pose, quat_multiply
@@ -28,6 +29,8 @@ from geometry.scene import Scene
 from geometry.tolerance import outside_volume
 from optimizer.score.interlock import BlockInterlock, interlock
 from optimizer.search.drop import DropWorld, Shape
+from settle import settle
+from settle.base import Thresholds
 
 #: Sideways step of :func:`lift_out_of_tolerance`, metres.
 LIFT_STEP = 0.1
@@ -35,6 +38,12 @@ LIFT_STEP = 0.1
 LIFT_MAX = 3.0
 #: Yaw angles tried by :func:`stand_on_leg_tip`, degrees.
 TIP_YAWS_DEG = tuple(range(0, 360, 30))
+#: How far off plumb :func:`stand_on_leg_tip` sets the leg, degrees: a hand on a crane does not
+#: hang a block exactly plumb, and a leg exactly plumb under the centroid balances in a settle.
+TIP_TILT_DEG = 4.0
+#: How many times a stability threshold :func:`stand_on_leg_tip`'s block must move past, held
+#: alone: twice, so that a settle of every block sees the same fall.
+FALL_MARGIN = 2.0
 
 
 def _replace(layout: Layout, poses: dict[int, Pose]) -> Layout:
@@ -128,15 +137,26 @@ def push_together(scene: Scene, layout: Layout, push: float = 0.02, skip: Collec
     raise InputError("push_together: no two touching blocks stand free on the foundation")
 
 
+def _falls(scene: Scene, layout: Layout, key: int, block: Block) -> bool:
+    """Block ``key``, let go with every other block held, moves at least ``FALL_MARGIN`` times past
+    a stability threshold: a fall, not a wobble that a full settle may judge either way."""
+    limits = Thresholds()
+    moved = next(b for b in settle(scene, layout.placed(), seed=0, movable={key}).blocks if b.id == key)
+    return (moved.displacement_m >= FALL_MARGIN * limits.displacement_limit(block)
+            or moved.rotation_deg >= FALL_MARGIN * limits.rotation_deg)
+
+
 def stand_on_leg_tip(scene: Scene, layout: Layout, skip: Collection[int] = ()) -> tuple[Layout, int]:
-    """One block turned upside down and set on the tip of its single leg.
+    """One block turned upside down and set on the tip of its single leg, ``TIP_TILT_DEG`` off plumb.
 
     For tetrapod-like blocks (one leg along local +z) upside down means that
     leg points down. Rule: of the blocks that touch no foundation and carry
     no other block, highest centroid first (then lowest id), and of the yaws
     ``TIP_YAWS_DEG`` in order, take the first that, lowered by the crane at
-    the block's own (x, y), stays inside the tolerance zone and first touches
-    exactly one block and not the foundation. Blocks in ``skip`` are not
+    the block's own (x, y), stays inside the tolerance zone, first touches
+    exactly one block and not the foundation, and, let go there with every
+    other block held, falls (moves ``FALL_MARGIN`` times past a stability
+    threshold: a block wedged on its tip between neighbours is no fault). Blocks in ``skip`` are not
     taken.
 
     Returns
@@ -149,7 +169,9 @@ def stand_on_leg_tip(scene: Scene, layout: Layout, skip: Collection[int] = ()) -
     candidates = sorted((k for k, info in report.items()
                          if not info.foundation and k not in carrying and k not in skip),
                         key=lambda k: (-poses[k].position[2], k))
-    flip = np.array([0.0, 1.0, 0.0, 0.0])  # half a turn about the block's x axis
+    # Half a turn about the block's x axis, and a few degrees more.
+    half = np.radians(180.0 + TIP_TILT_DEG) / 2
+    flip = np.array([np.cos(half), np.sin(half), 0.0, 0.0])
     for key in candidates:
         block = get_block(types[key], layout.base_dir)
         world = _drop_world(scene, layout, {key})
@@ -161,7 +183,9 @@ def stand_on_leg_tip(scene: Scene, layout: Layout, skip: Collection[int] = ()) -
             z, support, on_ground = world.drop(shape, x, y)
             pose = world.pose(shape, x, y, z)
             if len(support) == 1 and not on_ground and outside_volume(block, pose, scene.tolerance) == 0:
-                return _replace(layout, {key: pose}), key
+                tipped = _replace(layout, {key: pose})
+                if _falls(scene, tipped, key, block):
+                    return tipped, key
     raise InputError("stand_on_leg_tip: no block can be stood on a leg tip inside the tolerance zone")
 
 
