@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -250,5 +250,25 @@ def _vector(value: Any, n: int, name: str, where: str) -> np.ndarray:
 
 
 def write_layout(layout: Layout, path: str | os.PathLike) -> None:
-    """Write a layout atomically (whole, or not at all)."""
-    atomic_write(path, layout.dumps())
+    """Write a layout atomically (whole, or not at all).
+
+    A ``mesh:`` block type with a relative path is written relative to the
+    file's own folder, where a reader resolves it (docs/contract.md), not to
+    the folder it was relative to in memory (``layout.base_dir``, or the
+    working folder when that is None): a layout of a scene in one folder
+    written to another still finds its mesh.
+    """
+    folder = Path(path).expanduser().resolve().parent
+    blocks = [replace(p, type=_rebased(p.type, layout.base_dir, folder)) for p in layout.blocks]
+    atomic_write(path, replace(layout, blocks=blocks).dumps())
+
+
+def _rebased(block_type: str, base_dir: str | None, folder: Path) -> str:
+    """``block_type`` with a relative ``mesh:`` path made relative to ``folder`` instead of ``base_dir``."""
+    if not block_type.startswith("mesh:"):
+        return block_type
+    mesh = Path(block_type[5:]).expanduser()
+    if mesh.is_absolute():
+        return block_type
+    where = (Path(base_dir) if base_dir is not None else Path.cwd()) / mesh
+    return "mesh:" + Path(os.path.relpath(where.resolve(), folder)).as_posix()

@@ -151,3 +151,23 @@ def test_mesh_type_resolves_relative_to_the_layout(tmp_path, shake):
                                 "blocks": [_block(type="mesh:meshes/b.stl")]}))
     (_, block, _), = read_layout(path).placed()
     np.testing.assert_allclose(block.volume, shake.volume, rtol=1e-5)
+
+
+def test_a_mesh_layout_written_to_another_folder_still_finds_its_mesh(tmp_path, shake):
+    (tmp_path / "here" / "meshes").mkdir(parents=True)
+    (tmp_path / "there").mkdir()
+    shake.export(tmp_path / "here" / "meshes" / "b.stl")
+    source = tmp_path / "here" / "l.json"
+    source.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini",
+                                  "blocks": [_block(type="mesh:meshes/b.stl")]}))
+    layout = read_layout(source)
+    for out in (tmp_path / "there" / "l.json", tmp_path / "here" / "again.json"):
+        write_layout(layout, out)
+        (_, block, _), = read_layout(out).placed()
+        np.testing.assert_allclose(block.volume, shake.volume, rtol=1e-5)
+    # Written beside the original, the type is the same text as before.
+    def written(name: str) -> str:
+        return json.loads((tmp_path / name).read_text())["blocks"][0]["type"]
+
+    assert written("here/again.json") == "mesh:meshes/b.stl"
+    assert written("there/l.json") == "mesh:../here/meshes/b.stl"

@@ -113,7 +113,7 @@ def settle_cmd(layout_path: str, scene_name: str | None, seconds: float, out: st
         base = str(Path.cwd()) if scene_name is not None else layout.base_dir
         poses = result.poses
         blocks = [Placement(p.id, p.type, poses[p.id], p.time_s) for p in layout.blocks]
-        settled = Layout(_scene_reference(spec, base, path), blocks, dict(layout.extra))
+        settled = Layout(_scene_reference(spec, base, path), blocks, dict(layout.extra), layout.base_dir)
         write_layout(settled, path)
         payload["path"] = str(path)
     payload["seconds"] = time.perf_counter() - start
