@@ -79,9 +79,10 @@ RESERVE_SHARE = 0.5
 
 
 def settle_reserve(scene: Scene) -> float:
-    """Seconds kept for the settle that confirms a layout (one; repairs take what time is left)."""
+    """Seconds kept for the settles that confirm a layout (two kicks, ``physics.verdict``; repairs
+    take what time is left)."""
     n, pieces = scene.required_blocks, len(scene.block.pieces)
-    return RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5
+    return 2 * RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5
 
 
 def check_reserve(scene: Scene) -> float:
