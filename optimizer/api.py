@@ -246,6 +246,7 @@ def optimize(
     bound: bool = False,
     clock: Clock = time.monotonic,
     keep: Sequence[Placement] = (),
+    started: float | None = None,
 ) -> OptimizeResult:
     """Find a reference layout for ``scene``.
 
@@ -279,11 +280,16 @@ def optimize(
         stay exactly where they are, first in crane order, and the search
         places the rest around and on them. Each must be of the scene's block
         type.
+    started : float, optional
+        The ``clock`` reading when the caller's job began, if before this
+        call: ``shoha optimize`` passes the time before it read the scene and
+        cut a user's mesh into pieces, so that the limit covers them too and
+        ``seconds`` is what the user waited.
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
                          "shoha optimize places blocks in 3D scenes")
-    start = clock()
+    start = clock() if started is None else min(started, clock())
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     rng = np.random.default_rng(seed)
     if lattice is None:

@@ -381,6 +381,15 @@ def test_time_limit_is_honoured_and_result_valid(tiny, monkeypatch):
     r = optimize(tiny, seed=3, time_limit=4.0, clock=clock)
     assert r.seconds == clock() and r.seconds <= 4.0 + 2.0, f"{clock.drops} drops, {clock.settles} settles"
     assert clock() > 4.0 * 0.5, "the budget must bind for the test to mean anything"
+
+
+def test_time_spent_before_the_run_counts_against_its_limit(tiny, monkeypatch):
+    """``started``: what the caller spent before (reading a scene, cutting a mesh) is in the limit."""
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    clock.t = 3.0  # the command began 3 fake seconds before it called optimize
+    r = optimize(tiny, seed=3, time_limit=4.0, clock=clock, started=0.0)
+    assert r.seconds == clock() and r.seconds <= 4.0 + 2.0
+    assert clock() - 3.0 < 4.0 * 0.75, "the run itself must have had only what was left of the limit"
     assert r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
 
 

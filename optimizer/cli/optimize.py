@@ -68,6 +68,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     or a layout cut short. The save options (--from, --block, --origin) say
     how to read it.
     """
+    started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
     from geometry.layout import write_layout
     from geometry.scene import load_scene
     from optimizer.api import optimize
@@ -90,7 +91,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     strategies = _strategies(names)
     with _Progress(scene.required_blocks, scene.target_porosity) as progress:
         result = optimize(scene, seed=seed, time_limit=time_limit, strategies=strategies,
-                          settle_layout=not no_settle, report=progress.update, keep=keep)
+                          settle_layout=not no_settle, report=progress.update, keep=keep, started=started)
     result.layout.scene = scene.reference(path.parent)
     write_layout(result.layout, path)
     result.path = str(path)
