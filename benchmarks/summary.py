@@ -85,6 +85,14 @@ def span(values: list[float], digits: int = 0) -> str:
     )
 
 
+def spread(values: list[float], digits: int = 1) -> str:
+    """``lo-hi`` of ``values`` (one figure when they agree at ``digits``), or a dash for none."""
+    if not values:
+        return "-"
+    lo, hi = f"{min(values):.{digits}f}", f"{max(values):.{digits}f}"
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
 def listed(items: list[str]) -> str:
     return ", ".join(items[:-1]) + " and " + items[-1] if len(items) > 1 else "".join(items)
 
@@ -98,6 +106,70 @@ def table(columns: str, cells: list[list[Any]]) -> str:
 
 
 # --- values --------------------------------------------------------------------------------
+
+
+def generality_table(gr: list[dict[str, str]]) -> str:
+    """One line per method and scene: the seeds' spread of every figure issue 24 accepts on."""
+    cells = []
+    for method in dict.fromkeys(r["method"] for r in gr):
+        for scene in dict.fromkeys(r["scene"] for r in gr if r["method"] == method):
+            runs = [r for r in gr if r["method"] == method and r["scene"] == scene]
+            done = [r for r in runs if not r.get("error")]
+            if not done:
+                cells.append([method, scene, len(runs), "error", "", "", "", "", "", "0"])
+                continue
+
+            def col(key: str, digits: int = 1, runs: list = done) -> str:
+                return spread([float(r[key]) for r in runs if r[key] not in ("", None)], digits)
+
+            cells.append([
+                method, scene, len(runs),
+                f"{col('blocks', 0)} of {done[0]['required']}",
+                col("porosity_percent", 2) + f" ({float(done[0]['target_percent']):g})",
+                f"{sum(r['valid_ok'] == 'True' for r in done)}",
+                col("bare_share_percent"),
+                col("max_bare_m", 2) + f" ({float(done[0]['block_height_m']):.2f})",
+                col("seconds", 0) + f" ({float(done[0]['limit_s']):.0f})",
+                f"{sum(r['ok'] == 'True' for r in runs)}",
+            ])
+    return table("<method | <scene | seeds | blocks | porosity % (target) | valid | bare % | "
+                 "largest bare m (H) | took s (limit) | all items", cells)
+
+
+def generality_readme(gr: list[dict[str, str]]) -> str:
+    """The README's side-by-side: per scene, the old method's count and porosity, the new one's all."""
+    def runs(method: str, scene: str) -> list[dict[str, str]]:
+        return [r for r in gr if r["method"] == method and r["scene"] == scene and not r.get("error")]
+
+    def cell(method: str, scene: str, key: str, digits: int) -> str:
+        return spread([float(r[key]) for r in runs(method, scene) if r[key] not in ("", None)], digits)
+
+    cells = []
+    for scene in dict.fromkeys(r["scene"] for r in gr):
+        new, every = runs("new", scene), [r for r in gr if r["method"] == "new" and r["scene"] == scene]
+        if not every:
+            continue
+        required = (new or runs("old", scene) or [{"required": "?"}])[0]["required"]
+        cells.append([
+            scene, required,
+            cell("old", scene, "blocks", 0), cell("old", scene, "porosity_percent", 1),
+            cell("new", scene, "blocks", 0), cell("new", scene, "porosity_percent", 1),
+            f"{sum(r['valid_ok'] == 'True' for r in new)} of {len(every)}",
+            cell("new", scene, "bare_share_percent", 1), cell("new", scene, "seconds", 0)
+            + (f" ({float(new[0]['limit_s']):.0f})" if new else ""),
+            f"{sum(_all_but_coverage(r) for r in every)} of {len(every)}",
+            f"{sum(r['ok'] == 'True' for r in every)} of {len(every)}",
+        ])
+    columns = ("<scene | required | old: blocks | old: porosity % | new: blocks | new: porosity % | "
+               "new: valid | new: bare % | new: took s (limit) | new: all but coverage | new: all items")
+    if not any(r["method"] == "old" for r in gr):  # no old runs: no old columns
+        columns = columns.replace("old: blocks | old: porosity % | ", "").replace("new: ", "")
+        cells = [c[:2] + c[4:] for c in cells]
+    return table(columns, cells)
+
+
+def _all_but_coverage(row: dict[str, str]) -> bool:
+    return all(row.get(f"{k}_ok") == "True" for k in ("count", "valid", "porosity", "in_time"))
 
 
 def values() -> dict[str, Any]:
@@ -398,6 +470,30 @@ def values() -> dict[str, Any]:
         if "score" in by_case:
             v["serve_score"] = by_case["score"]
 
+    for stem, key in (("generality", "generality"), ("generality-held-out", "held_out")):
+        gr = rows(stem)
+        if gr:
+            v[f"{key}_table"] = generality_table(gr)
+            v[f"{key}_readme"] = generality_readme(gr)
+            v[f"{key}_seeds"] = ", ".join(dict.fromkeys(r["seed"] for r in gr))
+            machine = (meta(stem) or {}).get("machine", {})
+            earlier = (meta(stem) or {}).get("params", {}).get("reused_from")
+            v[f"{key}_when"] = (f"shoha {machine.get('commit', '?')} on {machine.get('date', '?')[:10]}, "
+                                f"{machine.get('cores', '?')} cores, 1-minute load "
+                                f"{(machine.get('load_average') or ['?'])[0]} at the start"
+                                + (f", the rows of the other scenes kept from {earlier}" if earlier else ""))
+            v[f"{key}_rows"] = gr
+
+    kp = rows("keep")
+    if kp:
+        v["keep_table"] = table(
+            "<start | seed | kept | blocks | porosity (%) | <valid | <kept unchanged | bare (%) | took (s)",
+            [[r["start"], r["seed"], r["kept"], f"{r['blocks']} of {r['required']}",
+              f"{float(r['porosity_percent']):.2f}", r["valid"], r["kept_unchanged"],
+              r["bare_share_percent"], r["seconds"]] for r in kp],
+        )
+        v["keep_rows"] = kp
+
     st = rows("serve_stacks")
     if st:
         v["stacks_table"] = table(
@@ -452,6 +548,20 @@ SUMMARY = [
         "{optimizer_table}\n\nLog-log slope of wall time against blocks over the long scenes: "
         "{optimizer_slope:.2f}.",
     ),
+    (
+        "`shoha optimize` on the engineer's scenes, old and new method (`generality.csv`, `.png`)",
+        ["generality_table"],
+        "{generality_table}\n\nValid: no collision, nothing out of tolerance, stable in a settle from "
+        "seed 0. All items: issue 24's acceptance at once (the count, valid, porosity within 1 point, "
+        "bare share at most 5 % and the largest bare distance at most H, within the limit + 2 s). "
+        "Spans are over the seeds.",
+    ),
+    (
+        "The same, on scenes held out of all tuning (`generality-held-out.csv`, `.png`)",
+        ["held_out_table"],
+        "{held_out_table}",
+    ),
+    ("`shoha optimize --keep` on mini, 30 blocks kept (`keep.csv`)", ["keep_table"], "{keep_table}"),
     ("`make bench` wall time (`run_all.csv`)", ["runs_table"], "{runs_table}"),
 ]
 
@@ -479,6 +589,20 @@ README_TRIMESH = (
     "voxel centres, the same rule as shoha's `voxel`, is {trimesh_same} than `voxel` at the same divisions; "
     "at equal or better accuracy, shoha's fastest method is {trimesh_equal} than either of trimesh's "
     "voxelizers."
+)
+
+README_GENERALITY = (
+    "**`shoha optimize` on the engineer's scenes** (`benchmarks/generality.py` at {generality_when}; "
+    "issue 24's table: seeds {generality_seeds}, default limit; *old* is the method before that issue, "
+    "*new* today's; spans are over the seeds; *all items* is the count, valid, porosity within 1 point, "
+    "bare share at most 5 % with the largest bare distance at most H, and the limit + 2 s, at once; "
+    "*all but coverage* leaves out the bare share and distance):\n\n{generality_readme}\n\n"
+    "![generality](benchmarks/results/generality.png)"
+)
+
+README_HELD_OUT = (
+    "Scenes held out of all tuning (`benchmarks/scenes/held-out/`, written after the method was frozen; "
+    "`generality.py --held-out` at {held_out_when}):\n\n{held_out_readme}"
 )
 
 
@@ -593,6 +717,8 @@ def readme_block(v: dict[str, Any]) -> str:
         "[optimizer quality against time](benchmarks/results/optimizer_quality.png), "
         "[optimizer scaling](benchmarks/results/optimizer_scaling.png), "
         "[`shoha serve` against session size](benchmarks/results/serve_latency.png).",
+        fill(README_GENERALITY, v),
+        fill(README_HELD_OUT, v),
     ]
     return "\n\n".join(p for p in parts if p)
 
