@@ -233,9 +233,6 @@ def main() -> None:
     parser.add_argument("--old-commit", default=OLD_COMMIT)
     parser.add_argument("--old-seeds", type=int, nargs="+", default=None,
                         help="Seeds for the old method (default: --seeds); it is only the comparison.")
-    parser.add_argument("--reuse", nargs="+", default=[], choices=["new", "old"],
-                        help="Take these methods' rows from the last results file instead of running them "
-                             "(the old method's do not change with this checkout).")
     parser.add_argument("--update", action="store_true",
                         help="Run only --scenes (and --methods), keep the last results file's other rows: "
                              "after a change that only those scenes feel.")
@@ -253,11 +250,10 @@ def main() -> None:
         scenes = args.scenes or list(SCENES)
         stem = "generality"
     write_turned_mesh(BENCH / "scenes" / "shake-turned.stl")
-    old = old_tree(args.old_commit) if "old" in args.methods and "old" not in args.reuse else None
-    earlier = last_meta(stem) if args.update or args.reuse else None
+    old = old_tree(args.old_commit) if "old" in args.methods else None
+    earlier = last_meta(stem) if args.update else None
     run = Run(stem, {"reused_from": earlier, "scenes": scenes, "seeds": args.seeds,
-                     "old_seeds": args.old_seeds, "methods": args.methods, "reused": args.reuse,
-                     "update": args.update,
+                     "old_seeds": args.old_seeds, "methods": args.methods, "update": args.update,
                      "old_commit": args.old_commit if "old" in args.methods else None})
     with tempfile.TemporaryDirectory() as tmp:
         def one(method: str, scene: str, seed: int) -> dict:
@@ -273,11 +269,9 @@ def main() -> None:
             return row
 
         seeds = {"new": args.seeds, "old": args.old_seeds or args.seeds}
-        todo = [(m, s, n) for m in args.methods if m not in args.reuse for s in scenes for n in seeds[m]]
+        todo = [(m, s, n) for m in args.methods for s in scenes for n in seeds[m]]
         ran = {(m, s) for m, s, _ in todo}
-        reused = [r for r in last_rows(stem)
-                  if (args.update and (r["method"], r["scene"]) not in ran)
-                  or (r["method"] in args.reuse and r["scene"] in scenes)]
+        reused = [r for r in last_rows(stem) if (r["method"], r["scene"]) not in ran] if args.update else []
         with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
             rows = list(pool.map(lambda job: one(*job), todo))
         order = {(m, s): i for i, (m, s) in enumerate((m, s) for m in ("new", "old") for s in SCENES)}

@@ -22,8 +22,8 @@ from geometry.layout import read_layout
 from geometry.pose import Pose
 from optimizer.score.render import COLOURS
 from optimizer.serve.session import world_to_unity
+from tests.browser import offline_page
 from tests.conftest import Served
-from tests.test_report import FLAGS, _chromium
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
 SCREENSHOT = "serve-screenshot.png"
@@ -41,88 +41,65 @@ def _standing_on_crest() -> Pose:
 
 
 def test_the_view_shows_each_change_live(tmp_path, keep_screenshot):
-    executable = _chromium()
-    from playwright.sync_api import sync_playwright
-
     reference = read_layout(REFERENCE)
     with Served("--reference", str(REFERENCE), "--reference-time-limit", "0") as served, \
             httpx.Client(base_url=served.url, timeout=60) as http:
         sid = http.post("/sessions", json={"scene": "mini"}).json()["session"]
-        errors: list[str] = []
-        remote: list[str] = []
-        with sync_playwright() as pw:
-            browser = pw.chromium.launch(executable_path=executable, args=FLAGS, headless=True)
-            try:
-                page = browser.new_page(viewport={"width": 1400, "height": 900})
-                page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-                page.on("pageerror", lambda e: errors.append(str(e)))
+        with offline_page((served.url,), {"width": 1400, "height": 900}, "the view") as page:
+            page.goto(f"{served.url}/sessions/{sid}/view")
+            page.wait_for_function("() => window.shohaView && window.shohaView.version === 0",
+                                   timeout=60_000)
+            assert page.inner_text("#blocks") == "0"
+            assert page.inner_text("#status") == "live"
 
-                def only_the_service(route):
-                    if route.request.url.startswith(served.url):
-                        route.continue_()
-                    else:
-                        remote.append(route.request.url)
-                        route.abort()
-
-                page.route("**/*", only_the_service)
-                page.goto(f"{served.url}/sessions/{sid}/view")
-                page.wait_for_function("() => window.shohaView && window.shohaView.version === 0",
-                                       timeout=60_000)
-                assert page.inner_text("#blocks") == "0"
-                assert page.inner_text("#status") == "live"
-
-                def lay(key: int, pose: Pose) -> dict:
-                    r = http.put(f"/sessions/{sid}/blocks/{key}",
-                                 json={**world_to_unity(pose, np.zeros(3)), "type": "shake-4t"})
-                    assert r.status_code == 200, r.text
-                    state = r.json()
-                    page.wait_for_function(f"() => window.shohaView.version === {state['version']}",
-                                           timeout=30_000)
-                    return state
-
-                # Three reference blocks: drawn grey, counted.
-                for p in reference.blocks[:3]:
-                    state = lay(p.id, p.pose)
-                assert state["protruding"] == [] and state["out_of_tolerance"] == []
-                assert page.inner_text("#blocks") == "3"
-                assert page.inner_text("#remaining") == str(state["remaining_blocks"])
-                assert page.inner_text("#porosity") == f"{state['porosity_percent']:.2f} %"
-                statuses = page.evaluate("window.shohaView.statuses")
-                assert statuses == {str(p.id): "block" for p in reference.blocks[:3]}
-                vertices = len(get_block("shake-4t").vertices)
-                traces = page.evaluate("document.getElementById('plot').data"
-                                       ".map(t => [t.name, t.color, t.x.length])")
-                grey = [t for t in traces if t[0].startswith("blocks:")]
-                assert grey == [["blocks: 3", COLOURS["block"], 3 * vertices]]
-                before = page.locator("#plot").screenshot()
-
-                # A block standing on the crest: yellow, and counted above the crest.
-                state = lay(100, _standing_on_crest())
-                assert state["protruding"] == [100]
-                assert page.inner_text("#blocks") == "4"
-                assert page.inner_text("#protruding") == "1"
-                assert page.evaluate("window.shohaView.statuses")["100"] == "protruding"
-                traces = page.evaluate("document.getElementById('plot').data"
-                                       ".map(t => [t.name, t.color, t.x.length])")
-                yellow = [t for t in traces if t[1] == COLOURS["protruding"]]
-                assert len(yellow) == 1 and yellow[0][2] == vertices, traces
-                page.wait_for_timeout(500)  # let WebGL draw the frame
-                after = page.locator("#plot").screenshot()
-                assert after != before
-
-                # Taken out again: the page follows.
-                r = http.delete(f"/sessions/{sid}/blocks/100")
-                page.wait_for_function(f"() => window.shohaView.version === {r.json()['version']}",
+            def lay(key: int, pose: Pose) -> dict:
+                r = http.put(f"/sessions/{sid}/blocks/{key}",
+                             json={**world_to_unity(pose, np.zeros(3)), "type": "shake-4t"})
+                assert r.status_code == 200, r.text
+                state = r.json()
+                page.wait_for_function(f"() => window.shohaView.version === {state['version']}",
                                        timeout=30_000)
-                assert page.inner_text("#protruding") == "0" and page.inner_text("#blocks") == "3"
-                state = lay(100, _standing_on_crest())
+                return state
 
-                shot = tmp_path / SCREENSHOT
-                page.screenshot(path=str(shot))
-            finally:
-                browser.close()
-    assert remote == [], f"the view asked for {remote}"
-    assert errors == [], f"console errors: {errors}"
+            # Three reference blocks: drawn grey, counted.
+            for p in reference.blocks[:3]:
+                state = lay(p.id, p.pose)
+            assert state["protruding"] == [] and state["out_of_tolerance"] == []
+            assert page.inner_text("#blocks") == "3"
+            assert page.inner_text("#remaining") == str(state["remaining_blocks"])
+            assert page.inner_text("#porosity") == f"{state['porosity_percent']:.2f} %"
+            statuses = page.evaluate("window.shohaView.statuses")
+            assert statuses == {str(p.id): "block" for p in reference.blocks[:3]}
+            vertices = len(get_block("shake-4t").vertices)
+            traces = page.evaluate("document.getElementById('plot').data"
+                                   ".map(t => [t.name, t.color, t.x.length])")
+            grey = [t for t in traces if t[0].startswith("blocks:")]
+            assert grey == [["blocks: 3", COLOURS["block"], 3 * vertices]]
+            before = page.locator("#plot").screenshot()
+
+            # A block standing on the crest: yellow, and counted above the crest.
+            state = lay(100, _standing_on_crest())
+            assert state["protruding"] == [100]
+            assert page.inner_text("#blocks") == "4"
+            assert page.inner_text("#protruding") == "1"
+            assert page.evaluate("window.shohaView.statuses")["100"] == "protruding"
+            traces = page.evaluate("document.getElementById('plot').data"
+                                   ".map(t => [t.name, t.color, t.x.length])")
+            yellow = [t for t in traces if t[1] == COLOURS["protruding"]]
+            assert len(yellow) == 1 and yellow[0][2] == vertices, traces
+            page.wait_for_timeout(500)  # let WebGL draw the frame
+            after = page.locator("#plot").screenshot()
+            assert after != before
+
+            # Taken out again: the page follows.
+            r = http.delete(f"/sessions/{sid}/blocks/100")
+            page.wait_for_function(f"() => window.shohaView.version === {r.json()['version']}",
+                                   timeout=30_000)
+            assert page.inner_text("#protruding") == "0" and page.inner_text("#blocks") == "3"
+            state = lay(100, _standing_on_crest())
+
+            shot = tmp_path / SCREENSHOT
+            page.screenshot(path=str(shot))
     assert json.loads(json.dumps(state))["blocks"] == 4
     assert shot.stat().st_size > 30_000
     keep_screenshot(shot)
