@@ -43,7 +43,7 @@ from common import MINI_75, Run, timed
 from geometry.layout import Layout, Placement, read_layout, write_layout
 from optimizer.score import Reference, score
 from settle import settle
-from tests.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
+from tests.perturb import three_faults
 
 REPEATS = 5
 TARGET_SECONDS = 3.0
@@ -53,9 +53,7 @@ def saves(reference: Layout) -> dict[str, Layout]:
     scene = reference.load_scene()
     result = settle(scene, reference.placed(), seed=7)
     settled = Layout("mini", [Placement(p.id, p.type, result.poses[p.id]) for p in reference.blocks])
-    faulty, _ = lift_out_of_tolerance(scene, reference)
-    faulty, _ = stand_on_leg_tip(scene, faulty)
-    faulty, _ = push_together(scene, faulty)
+    faulty = three_faults(scene, reference)
     faulty.scene = "mini"
     plain = Layout("mini", list(reference.blocks), dict(reference.extra))
     return {"reference": plain, "settled": settled, "three-faults": faulty}

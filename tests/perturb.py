@@ -189,6 +189,18 @@ def stand_on_leg_tip(scene: Scene, layout: Layout, skip: Collection[int] = ()) -
     raise InputError("stand_on_leg_tip: no block can be stood on a leg tip inside the tolerance zone")
 
 
+def three_faults(scene: Scene, layout: Layout) -> Layout:
+    """One block lifted out of tolerance, one stood on a leg tip, and two pushed together.
+
+    The faulty save that the report, the service's tests and the scoring
+    benchmarks share: one fault of each kind, in that order.
+    """
+    layout, _ = lift_out_of_tolerance(scene, layout)
+    layout, _ = stand_on_leg_tip(scene, layout)
+    layout, _ = push_together(scene, layout)
+    return layout
+
+
 def repeated(fault: Callable[..., tuple[Layout, Any]], scene: Scene, layout: Layout, count: int
              ) -> tuple[Layout, list[Any]]:
     """``fault`` put in up to ``count`` times, each time into blocks no earlier time touched.

@@ -26,7 +26,7 @@ from geometry.layout import read_layout, write_layout
 from optimizer.score.render import COLOURS
 from tests.browser import LOCAL, offline_page
 from tests.conftest import shoha
-from tests.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
+from tests.perturb import three_faults
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
 SCREENSHOT = "report-screenshot.png"
@@ -40,9 +40,7 @@ def report(tmp_path_factory) -> tuple[Path, dict]:
     folder = tmp_path_factory.mktemp("report")
     ref = read_layout(REFERENCE)
     scene = ref.load_scene()
-    layout, _ = lift_out_of_tolerance(scene, ref)
-    layout, _ = stand_on_leg_tip(scene, layout)
-    layout, _ = push_together(scene, layout)
+    layout = three_faults(scene, ref)
     layout.scene = "mini"
     save = folder / "trainee.json"
     write_layout(layout, save)

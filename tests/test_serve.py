@@ -25,7 +25,7 @@ from geometry.layout import Layout, Placement, read_layout
 from optimizer.serve.session import world_to_unity
 from settle import settle
 from tests.conftest import Served, shoha
-from tests.perturb import lift_out_of_tolerance, push_together, stand_on_leg_tip
+from tests.perturb import three_faults
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
 TINY = Path(__file__).parent / "data" / "tiny.toml"
@@ -65,9 +65,7 @@ def saves() -> dict[str, Layout]:
     scene = ref.load_scene()
     result = settle(scene, ref.placed(), seed=7)
     settled = Layout("mini", [Placement(p.id, p.type, result.poses[p.id]) for p in ref.blocks])
-    faulty, _ = lift_out_of_tolerance(scene, ref)
-    faulty, _ = stand_on_leg_tip(scene, faulty)
-    faulty, _ = push_together(scene, faulty)
+    faulty = three_faults(scene, ref)
     faulty.scene = "mini"
     return {"reference": Layout("mini", list(ref.blocks)), "settled": settled, "faulty": faulty}
 
