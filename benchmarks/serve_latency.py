@@ -146,6 +146,16 @@ def watch(url: str, conn: Any, ready: Any, stop: Any) -> None:
     conn.send(arrived)
 
 
+def lay_then_move(client: Client, sid: str, placed: list, moves: int) -> tuple[list, list, list, list]:
+    """``placed`` laid block by block, then ``moves`` moves: client and service times of each."""
+    lay, lay_server = [], []
+    for key, block, pose in placed:
+        t, state = client.put(sid, key, block, pose)
+        lay.append(t)
+        lay_server.append(state["seconds"])
+    return (lay, lay_server, *moves_on(client, sid, placed, moves, seed=0))
+
+
 def moves_on(client: Client, sid: str, placed: list, moves: int, seed: int) -> tuple[list, list]:
     rng = np.random.default_rng(seed)
     times, server = [], []
@@ -190,12 +200,8 @@ def main() -> int:
 
         # mini-75: laid block by block, then moved.
         sid = client.session("mini")
-        lay, lay_server, by_size = [], [], []
-        for key, block, pose in mini:
-            t, state = client.put(sid, key, block, pose)
-            lay.append(t)
-            lay_server.append(state["seconds"])
-        move, move_server = moves_on(client, sid, mini, args.moves, seed=0)
+        by_size = []
+        lay, lay_server, move, move_server = lay_then_move(client, sid, mini, args.moves)
         row("mini-75", 75, lay + move, lay_server + move_server)
         row("mini-lay", 75, lay, lay_server)
         row("mini-move", 75, move, move_server)
@@ -204,12 +210,7 @@ def main() -> int:
         # The same with the standard library's client, on a session of its own.
         light = StdlibClient(svc.url)
         sid2 = light.session("mini")
-        lay2, lay2_server = [], []
-        for key, block, pose in mini:
-            t, state = light.put(sid2, key, block, pose)
-            lay2.append(t)
-            lay2_server.append(state["seconds"])
-        move2, move2_server = moves_on(light, sid2, mini, args.moves, seed=0)
+        lay2, lay2_server, move2, move2_server = lay_then_move(light, sid2, mini, args.moves)
         row("mini-75-stdlib", 75, lay2 + move2, lay2_server + move2_server)
         light.http.delete(f"/sessions/{sid2}")
 
