@@ -214,12 +214,31 @@ class CollisionWorld:
         probe = _Entry(block, pose, (0, 0, 0))
         hits = []
         for key in self.neighbours(pose.position, block.bounding_radius, exclude):
-            depth = _pair_depth(probe, self._entries[key], threshold)
+            depth = _pair_depth(probe, self._entries[key], threshold, boolean=threshold < 0)
             if depth is not None:
                 hits.append((key, depth))
                 if first:
                     break
         return hits
+
+    def contact(self, a: int, b: int, depth: bool = True) -> tuple[bool, float | None]:
+        """Whether blocks ``a`` and ``b`` of this world touch, and how deep they interpenetrate.
+
+        One narrow phase for both answers: FCL is asked of each pair of their
+        pieces whose boxes overlap, ``a``'s piece first, as :meth:`query` asks
+        a probe ``a`` and :meth:`pairs` asks a pair whose earlier block is ``a``.
+
+        Returns
+        -------
+        (touching, deepest)
+            ``deepest`` is the deepest penetration over piece pairs (metres),
+            or None where they do not touch or ``depth`` is False (then FCL's
+            boolean test alone is run, and stops at the first touching pair).
+        """
+        if not depth:
+            return _pair_depth(self._entries[a], self._entries[b], -1.0, boolean=True) is not None, None
+        deepest = _pair_depth(self._entries[a], self._entries[b], -np.inf)
+        return deepest is not None, deepest
 
     def pairs(self, threshold: float = tol.contact_depth) -> list[Collision]:
         """Every pair of blocks in the world interpenetrating by more than ``threshold``.
@@ -243,7 +262,7 @@ class CollisionWorld:
         out = []
         for n, (a, b) in enumerate(zip(i.tolist(), j.tolist(), strict=True)):
             overlap = overlaps[n] if overlaps is not None else None
-            depth = _pair_depth(entries[a], entries[b], threshold, overlap)
+            depth = _pair_depth(entries[a], entries[b], threshold, overlap, boolean=threshold < 0)
             if depth is not None:
                 ka, kb = keys[a], keys[b]
                 out.append(Collision(min(ka, kb), max(ka, kb), depth))
@@ -265,11 +284,13 @@ _REQUEST_DEPTH = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
 _REQUEST_BOOL = fcl.CollisionRequest(num_max_contacts=1, enable_contact=False)
 
 
-def _pair_depth(a: _Entry, b: _Entry, threshold: float, overlap: np.ndarray | None = None) -> float | None:
+def _pair_depth(a: _Entry, b: _Entry, threshold: float, overlap: np.ndarray | None = None,
+                boolean: bool = False) -> float | None:
     """Deepest penetration over piece pairs if it exceeds ``threshold``, else None.
 
     ``overlap`` is the ``(pa, pb)`` piece-box overlap matrix when the caller
-    has it already.
+    has it already. ``boolean`` asks FCL's boolean test only, and answers 0.0
+    at the first touching piece pair.
     """
     if overlap is None:
         # Piece bounding boxes that overlap, all pairs in one vectorised test.
@@ -280,7 +301,7 @@ def _pair_depth(a: _Entry, b: _Entry, threshold: float, overlap: np.ndarray | No
     deepest = None
     for i, j in zip(*np.nonzero(overlap), strict=True):
         oa, ob = a.object(i), b.object(j)
-        if threshold < 0:
+        if boolean:
             if fcl.collide(oa, ob, _REQUEST_BOOL, fcl.CollisionResult()):
                 return 0.0
             continue

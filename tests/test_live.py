@@ -1,0 +1,69 @@
+"""The live layout ``shoha serve`` keeps: after any run of lays, moves and removals, its checks are
+the whole-layout checks of the same blocks, computed afresh (``shoha check``, ``shoha porosity``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geometry.collision import collisions
+from geometry.layout import read_layout
+from geometry.porosity import porosity
+from geometry.pose import Pose, axis_angle_quat, quat_multiply
+from geometry.tolerance import out_of_tolerance
+from optimizer.serve.live import LiveLayout
+from tests.test_score_cli import REFERENCE
+
+
+@pytest.fixture(scope="module")
+def pile():
+    """The seed-1 mini reference: a settled pile, every block resting on its neighbours."""
+    layout = read_layout(REFERENCE)
+    return layout.load_scene(), layout.placed()
+
+
+def _assert_as_whole(live: LiveLayout, scene) -> None:
+    placed = live.placed()
+    assert live.porosity_percent == pytest.approx(porosity(scene, placed, "exact").percent, abs=1e-6)
+    whole = collisions(placed)
+    assert [(a, b) for a, b, _ in live.collisions()] == [(c.a, c.b) for c in whole]
+    np.testing.assert_allclose([d for _, _, d in live.collisions()], [c.depth for c in whole],
+                               rtol=1e-9, atol=1e-12)
+    outside = out_of_tolerance(placed, scene.tolerance)
+    assert [k for k, _ in live.out_of_tolerance()] == [k for k, _ in outside]
+    np.testing.assert_allclose([v for _, v in live.out_of_tolerance()], [v for _, v in outside], rtol=1e-9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_moves_and_removals_keep_the_checks_of_the_whole_layout(pile, seed):
+    """Blocks pushed into their neighbours (up to 15 cm and 10 degrees), taken out and laid again:
+    porosity, collisions with their depths, and out of tolerance stay those of the whole layout."""
+    scene, placed = pile
+    rng = np.random.default_rng(seed)
+    live = LiveLayout(scene)
+    for key, block, pose in placed:
+        live.put(key, block.name, block, pose)
+    _assert_as_whole(live, scene)
+    out: list[tuple[int, object, Pose]] = []
+    collided = False
+    for step in range(24):
+        if out and rng.random() < 0.25:
+            key, block, pose = out.pop(int(rng.integers(len(out))))
+            live.put(key, block.name, block, pose)
+        else:
+            key, block, pose = placed[int(rng.integers(len(placed)))]
+            if key not in live:
+                continue
+            if rng.random() < 0.2:
+                live.remove(key)
+                out.append((key, block, pose))
+            else:
+                turn = axis_angle_quat(rng.normal(size=3), np.radians(rng.uniform(-10, 10)))
+                moved = Pose(pose.position + rng.uniform(-0.15, 0.15, 3),
+                             quat_multiply(turn, pose.quaternion))
+                live.put(key, block.name, block, moved)
+        collided |= bool(live.collisions())
+        if step % 4 == 3:
+            _assert_as_whole(live, scene)
+    _assert_as_whole(live, scene)
+    assert collided  # the pushes did make the interpenetrating pairs whose depths are compared
