@@ -43,6 +43,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from collections.abc import Collection, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -757,13 +758,17 @@ def score(
     rule = rule if rule is not None else reference.rule
     placed = list(placed)
     n = len(placed)
-    own_porosity = porosity(scene, placed, "exact").percent
-    outside = out_of_tolerance(placed, scoring_zone(scene))
-    pairs = collisions(placed)
-    settled = settle(scene, placed, seconds=seconds, seed=seed)
-    held = interlock(placed, scene.foundation, rule)
-    own_cover = coverage(scene, placed)
-    zones = porosity_map(scene, placed, reference.slices, reference.layers)
+    # MuJoCo lets go of the GIL while it steps, so the settle runs on a second core beside the
+    # geometry that does not need its verdict: a score takes the longer of the two, not their sum.
+    with ThreadPoolExecutor(1, thread_name_prefix="shoha-settle") as pool:
+        settling = pool.submit(settle, scene, placed, seconds=seconds, seed=seed)
+        own_porosity = porosity(scene, placed, "exact").percent
+        outside = out_of_tolerance(placed, scoring_zone(scene))
+        pairs = collisions(placed)
+        held = interlock(placed, scene.foundation, rule)
+        own_cover = coverage(scene, placed)
+        zones = porosity_map(scene, placed, reference.slices, reference.layers)
+        settled = settling.result()
     stage = reference.stage(n)
     # Judged at the trainee's stage: the save's good blocks finished with the reference's own.
     # A block with a fault of its own is charged for that fault and left out here.
