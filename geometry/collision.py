@@ -77,7 +77,7 @@ def _stacked_vertices(block: Block) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Entry:
-    __slots__ = ("block", "pose", "_objects", "_transform", "boxes", "centre", "radius", "cell")
+    __slots__ = ("block", "pose", "_objects", "_transform", "boxes", "box", "centre", "xyz", "radius", "cell")
 
     def __init__(self, block: Block, pose: Pose, cell: tuple[int, int, int]):
         self.block = block
@@ -94,7 +94,10 @@ class _Entry:
         boxes = np.stack([np.minimum.reduceat(world, starts), np.maximum.reduceat(world, starts)], axis=1)
         boxes += pose.position
         self.boxes = boxes
+        #: The whole block's box, (min x, y, z, max x, y, z) as Python floats.
+        self.box = tuple(float(v) for v in (*boxes[:, 0].min(axis=0), *boxes[:, 1].max(axis=0)))
         self.centre = pose.position
+        self.xyz = tuple(float(v) for v in pose.position)  # for the broadphase's scalar arithmetic
         self._transform = None
         self._objects: list[fcl.CollisionObject | None] = [None] * len(starts)
 
@@ -176,6 +179,7 @@ class CollisionWorld:
         lo = self._cell_of(np.asarray(centre) - reach)
         hi = self._cell_of(np.asarray(centre) + reach)
         skip = set(exclude)
+        cx, cy, cz = (float(v) for v in centre)
         out = []
         for i in range(lo[0], hi[0] + 1):
             for j in range(lo[1], hi[1] + 1):
@@ -184,7 +188,9 @@ class CollisionWorld:
                         if key in skip:
                             continue
                         e = self._entries[key]
-                        if np.sum((e.centre - centre) ** 2) <= (radius + e.radius) ** 2:
+                        ex, ey, ez = e.xyz
+                        # Python floats: a numpy call per candidate cost more than the test itself.
+                        if (ex - cx) ** 2 + (ey - cy) ** 2 + (ez - cz) ** 2 <= (radius + e.radius) ** 2:
                             out.append(key)
         return out
 
@@ -293,6 +299,10 @@ def _pair_depth(a: _Entry, b: _Entry, threshold: float, overlap: np.ndarray | No
     at the first touching piece pair.
     """
     if overlap is None:
+        ba, bb = a.box, b.box
+        if not (ba[0] <= bb[3] and bb[0] <= ba[3] and ba[1] <= bb[4] and bb[1] <= ba[4]
+                and ba[2] <= bb[5] and bb[2] <= ba[5]):
+            return None  # the blocks' own boxes are apart: no piece pair can touch
         # Piece bounding boxes that overlap, all pairs in one vectorised test.
         overlap = np.all(
             (a.boxes[:, None, 0] <= b.boxes[None, :, 1]) & (b.boxes[None, :, 0] <= a.boxes[:, None, 1]),
