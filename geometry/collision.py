@@ -227,22 +227,19 @@ class CollisionWorld:
                     break
         return hits
 
-    def contact(self, a: int, b: int, depth: bool = True) -> tuple[bool, float | None]:
+    def contact(self, a: int, b: int) -> tuple[bool, float | None]:
         """Whether blocks ``a`` and ``b`` of this world touch, and how deep they interpenetrate.
 
         One narrow phase for both answers: FCL is asked of each pair of their
-        pieces whose boxes overlap, ``a``'s piece first, as :meth:`query` asks
-        a probe ``a`` and :meth:`pairs` asks a pair whose earlier block is ``a``.
+        pieces whose boxes overlap, ``a``'s piece first, as :meth:`pairs`
+        asks a pair whose earlier block is ``a``.
 
         Returns
         -------
         (touching, deepest)
             ``deepest`` is the deepest penetration over piece pairs (metres),
-            or None where they do not touch or ``depth`` is False (then FCL's
-            boolean test alone is run, and stops at the first touching pair).
+            None where they do not touch.
         """
-        if not depth:
-            return _pair_depth(self._entries[a], self._entries[b], -1.0, boolean=True) is not None, None
         deepest = _pair_depth(self._entries[a], self._entries[b], -np.inf)
         return deepest is not None, deepest
 

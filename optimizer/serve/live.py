@@ -267,20 +267,16 @@ class LiveLayout:
     def _contacts(self, key: int, block: Block, pose: Pose) -> set[int]:
         """The blocks that block ``key`` (just added to the world) touches; records its collisions.
 
-        Collisions are found as ``shoha check`` finds them. FCL's depth of a
-        pair depends on which block is asked first (by up to 2 mm between
-        Shake Blocks), and ``shoha check`` asks each pair with its earlier
-        block first. So a later neighbour is asked with this block first, in
-        the same narrow phase that finds the touch; an earlier neighbour that
-        touches it is asked again the other way round.
+        Touches and collisions are found as ``shoha check`` and the exact
+        porosity find them. FCL's answer for a pair depends on which block is
+        asked first (its depth by up to 2 mm between Shake Blocks), and they ask
+        each pair with its earlier block first; so does this, once per pair,
+        in one narrow phase that finds both the touch and the depth.
         """
         touching = set()
         for other in self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,)):
-            if self._seq[other] > self._seq[key]:
-                touches, depth = self._world.contact(key, other)
-            else:
-                touches, _ = self._world.contact(key, other, depth=False)
-                depth = self._world.contact(other, key)[1] if touches else None
+            first, second = (key, other) if self._seq[other] > self._seq[key] else (other, key)
+            touches, depth = self._world.contact(first, second)
             if touches:
                 touching.add(other)
                 if depth is not None and depth > tol.contact_depth:
