@@ -71,6 +71,8 @@ SIZES = (75, 250, 500, 1000)
 TARGETS = {"mini-75": (2.0, 10.0), "mini-75-httpx": (2.0, 10.0), "full-1000": (None, 30.0),
            "event": (None, 15.0)}
 SCORE_TARGET_S = 2.0
+#: The timed connection is opened afresh after this long unused (uvicorn's keep-alive lasts 5 s).
+IDLE_RECONNECT_S = 2.0
 
 
 def unity_body(block: Any, pose: Pose) -> dict[str, Any]:
@@ -121,15 +123,22 @@ class StdlibClient(Client):
 
         super().__init__(url)
         self.conn = http.client.HTTPConnection(url.split("//")[1].split(":")[0], int(url.rsplit(":", 1)[1]))
+        self.last = time.monotonic()
 
     def put(self, sid: str, key: int, block: Any, pose: Pose) -> tuple[float, dict[str, Any]]:
         data = json.dumps(unity_body(block, pose)).encode()
+        if time.monotonic() - self.last > IDLE_RECONNECT_S:
+            # uvicorn closes a keep-alive connection idle for 5 s, and http.client only finds out
+            # when its next request fails: open a new one first, outside the timed call.
+            self.conn.close()
+            self.conn.connect()
         t = time.perf_counter()
         self.conn.request("PUT", f"/sessions/{sid}/blocks/{key}", body=data,
                           headers={"Content-Type": "application/json"})
         response = self.conn.getresponse()
         text = response.read()
         elapsed = time.perf_counter() - t
+        self.last = time.monotonic()
         if response.status != 200:
             raise RuntimeError(f"PUT answered {response.status}: {text[:200]!r}")
         return elapsed, json.loads(text)
