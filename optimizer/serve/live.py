@@ -22,12 +22,14 @@ porosity --method exact``'s on the same blocks, computed by the same functions:
 
   since ``k`` meets no block it does not touch. ``V(k)`` is
   :func:`geometry.clip.volume_inside`; the intersection with the (few) touched
-  blocks is one manifold3d boolean, clipped to the prism like
-  ``geometry.porosity``'s unions. Taking a block out subtracts the same terms
-  with its neighbours as they stand then, so the running sum stays the
-  volume of the union: each step is exact to manifold3d's rounding
+  blocks is the union of ``k``'s intersection with each of them (a manifold3d
+  boolean per pair, kept until either block of the pair moves), clipped to
+  the prism like ``geometry.porosity``'s unions. Taking a block out subtracts
+  the same terms with its neighbours as they stand then, so the running sum
+  stays the volume of the union: each step is exact to manifold3d's rounding
   (about 1e-13 m³), far below the 1e-6 percentage points the state promises.
-  "Touches" is the same FCL test ``geometry.collision.overlap_groups`` uses.
+  "Touches" is FCL's answer for the pair asked earlier block first, as
+  ``geometry.collision.overlap_groups`` asks it.
 * **Above the crest** (``protruding``): the block's volume above the design
   crest's plane ``z = height``, by manifold3d's plane trim, for blocks that
   reach above it.
