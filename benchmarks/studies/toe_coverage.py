@@ -47,9 +47,14 @@ Writes ``results/toe_coverage.{csv,json}``: one row per layout (``stage``
 ``reference``, ``added``, ``removed``, ``toe row``, ``reference + rows``,
 ``rows, hit out``), with the arithmetic in the JSON's params.
 
+* with ``--optimize``: the optimizer's default pipeline (and limit) laying the
+  rest of the mound around each hanging's toe rows, which it keeps where they
+  are (as ``shoha optimize --keep``), seeds 1, 2 and 3: count, porosity,
+  coverage, validity (about 10 minutes more).
+
 Run::
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/studies/toe_coverage.py
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/studies/toe_coverage.py [--optimize]
 
 It is a study, not a benchmark: ``make bench`` does not run it (it takes
 minutes). Its findings are written up in docs/coverage-study.md.
@@ -109,6 +114,8 @@ BANDS = ((4.5, 5.0), (5.0, 5.5), (5.5, 6.0))
 #: Toe rows: yaws tried per hanging and the step of the sweeps, m.
 ROW_YAWS = 24
 ROW_STEP = 0.02
+#: With ``--optimize``: the seeds of the optimizer's runs around the toe rows.
+OPTIMIZE_SEEDS = (1, 2, 3)
 #: A lowering or a let-go is measured again when the block placed last is this close, m
 #: (horizontally for lowerings: two footprint radii and a margin; in 3D for let-gos, whose
 #: neighbours are those within 2.5 bounding radii).
@@ -411,9 +418,41 @@ def main() -> None:
                 row["porosity_with_short_whole_inside_percent"] = round(low, 2)
             rows.append(row)
             show(row)
+    if "--optimize" in sys.argv[1:]:
+        rows.extend(around_rows(scene, laid_by))
     run.params.update(arithmetic)
     run.csv("toe_coverage", rows)
     run.done()
+
+
+def around_rows(scene: Scene, laid_by: dict) -> list[dict]:
+    """``shoha optimize``'s pipeline (its default limit) laying the rest of the mound around
+    each hanging's toe rows, kept where they are (``optimize(keep=...)``, as ``--keep``)."""
+    from geometry.layout import Placement
+    from optimizer.api import optimize
+
+    out = []
+    for family in ("crown", "horizontal"):
+        rows_placed = [pose for row, _ in laid_by[family] for _, _, pose in row.placed()]
+        keep = [Placement(i, scene.block_type, pose) for i, pose in enumerate(rows_placed)]
+        for seed in OPTIMIZE_SEEDS:
+            result = optimize(scene, seed=seed, keep=keep)
+            cov = result.coverage or {}
+            row = {"stage": "optimize around rows", "family": family, "seed": seed,
+                   "blocks": result.blocks, "required": result.required_blocks,
+                   "porosity_percent": round(result.porosity_percent, 2),
+                   "bare_share_percent": round(cov.get("bare_share_percent", float("nan")), 2),
+                   "max_bare_m": round(cov.get("max_bare_m") or float("nan"), 3),
+                   "collisions": result.collisions, "out_of_tolerance": result.out_of_tolerance,
+                   "stable": result.stable, "seconds": round(result.seconds, 1),
+                   "row_blocks": len(keep)}
+            row["valid"] = row["collisions"] == 0 and row["out_of_tolerance"] == 0 and bool(result.stable)
+            out.append(row)
+            print(f"around {family} rows, seed {seed}: {row['blocks']}/{row['required']} blocks, "
+                  f"{row['porosity_percent']:.2f} %, bare {row['bare_share_percent']:.2f} %, "
+                  f"largest bare {row['max_bare_m']:.2f} m, valid {row['valid']}, {row['seconds']} s",
+                  flush=True)
+    return out
 
 
 def toe_rows(scene: Scene, placed: list) -> tuple[list[dict], dict]:
