@@ -5,10 +5,11 @@ Python's ``http.client`` over one keep-alive connection to 127.0.0.1, and
 every time is taken around the whole request on the client's side. The
 simulator's client is compiled C# (``UnityWebRequest``), whose own cost per
 request is nearer ``http.client``'s than httpx's; httpx, which costs about a
-millisecond more per request on this machine, is measured beside it. The blocks are the benchmark
-reference layouts after a physics settle (``common.settled``): in contact,
-as a simulator saves a pile at rest, so every block has neighbours whose
-overlaps the exact porosity must take out.
+millisecond more per request on this machine, is measured beside it.
+
+The blocks are the benchmark reference layouts after a physics settle
+(``common.settled``): in contact, as a simulator saves a pile at rest, so
+every block has neighbours whose overlaps the exact porosity must take out.
 
 Cases and targets (issue 25):
 
