@@ -299,3 +299,37 @@ def test_convex_polytope_volume_matches_hull():
     from scipy.spatial import ConvexHull
 
     assert ConvexPolytope.from_points(pts).volume == pytest.approx(ConvexHull(pts).volume, rel=1e-12)
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod:2.0"])
+def test_volume_inside_matches_the_boolean_against_the_prism(mini, name):
+    """One posed block against the design prism, straddling one, two or three of its planes.
+
+    The one-plane cut sums the triangles' shares in closed form, the two-plane
+    cut finds its apex in closed form: both against manifold3d's intersection.
+    """
+    import manifold3d as m3
+
+    from geometry.blocks import get_block
+    from geometry.clip import volume_inside
+    from geometry.constants import tol
+
+    block = get_block(name)
+    prism = mini.design.polytope
+    solid = m3.Manifold.hull_points(prism.vertices)
+    rng = np.random.default_rng(5)
+    lo, hi = mini.design.bounds
+    seen: dict[int, int] = {}
+    for _ in range(120):
+        # Poses near the prism's surface: a point on a random face, pushed in or out by up to a block.
+        corner = prism.vertices[rng.integers(len(prism.vertices), size=3)]
+        weights = rng.dirichlet(np.ones(3))
+        at = weights @ corner + rng.normal(0.0, 0.4, 3)
+        pose = Pose(np.clip(at, lo - 1.0, hi + 1.0), random_quaternion(rng))
+        world = pose.apply(block.vertices)
+        crossed = int(((world @ prism.normals.T - prism.offsets).max(axis=0) > tol.distance).sum())
+        seen[crossed] = seen.get(crossed, 0) + 1
+        posed = block.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
+        expected = (posed ^ solid).volume()
+        assert volume_inside(block, pose, prism) == pytest.approx(expected, abs=1e-9, rel=1e-9)
+    assert seen.get(1, 0) >= 10 and seen.get(2, 0) >= 10, seen
