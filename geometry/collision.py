@@ -227,21 +227,51 @@ class CollisionWorld:
                     break
         return hits
 
-    def contact(self, a: int, b: int) -> tuple[bool, float | None]:
-        """Whether blocks ``a`` and ``b`` of this world touch, and how deep they interpenetrate.
+    def contacts(self, key: int, others: Sequence[int], first: Sequence[bool]) -> dict[int, float]:
+        """Which of ``others`` block ``key`` touches, and how deep each such pair interpenetrates.
 
-        One narrow phase for both answers: FCL is asked of each pair of their
-        pieces whose boxes overlap, ``a``'s piece first, as :meth:`pairs`
-        asks a pair whose earlier block is ``a``.
+        One narrow phase for both answers: FCL is asked of each pair of pieces
+        whose boxes overlap, ``key``'s piece first where ``first[n]`` and
+        ``others[n]``'s first elsewhere, as :meth:`pairs` asks a pair with its
+        earlier block first. The piece boxes of all of ``others`` are tested
+        in one vectorised pass.
 
         Returns
         -------
-        (touching, deepest)
-            ``deepest`` is the deepest penetration over piece pairs (metres),
-            None where they do not touch.
+        dict of other key -> deepest penetration over their piece pairs (metres), for the touching ones.
         """
-        deepest = _pair_depth(self._entries[a], self._entries[b], -np.inf)
-        return deepest is not None, deepest
+        e = self._entries[key]
+        ba = e.box
+        keys, near, order = [], [], []
+        for other, ours in zip(others, first, strict=True):
+            bb = self._entries[other].box
+            if (ba[0] <= bb[3] and bb[0] <= ba[3] and ba[1] <= bb[4] and bb[1] <= ba[4]
+                    and ba[2] <= bb[5] and bb[2] <= ba[5]):
+                keys.append(other)
+                near.append(self._entries[other])
+                order.append(ours)
+        out: dict[int, float] = {}
+        if not near:
+            return out
+        if len({len(o.boxes) for o in near}) > 1:  # blocks of other piece counts: a pair at a time
+            for other, o, ours in zip(keys, near, order, strict=True):
+                depth = _pair_depth(e, o, -np.inf) if ours else _pair_depth(o, e, -np.inf)
+                if depth is not None:
+                    out[other] = depth
+            return out
+        a, b = e.boxes, np.stack([o.boxes for o in near])  # (p, 2, 3), (m, q, 2, 3)
+        ours_lo, ours_hi = a[None, :, None, 0], a[None, :, None, 1]
+        overlap = np.all((ours_lo <= b[:, None, :, 1]) & (b[:, None, :, 0] <= ours_hi), axis=3)  # (m, p, q)
+        for n, i, j in zip(*(v.tolist() for v in np.nonzero(overlap)), strict=True):
+            o = near[n]
+            result = fcl.CollisionResult()
+            hit = (fcl.collide(e.object(i), o.object(j), _REQUEST_DEPTH, result) if order[n]
+                   else fcl.collide(o.object(j), e.object(i), _REQUEST_DEPTH, result))
+            if hit:
+                depth = max(c.penetration_depth for c in result.contacts)
+                if depth > out.get(keys[n], -np.inf):
+                    out[keys[n]] = depth
+        return out
 
     def pairs(self, threshold: float = tol.contact_depth) -> list[Collision]:
         """Every pair of blocks in the world interpenetrating by more than ``threshold``.

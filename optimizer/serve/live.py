@@ -275,12 +275,10 @@ class LiveLayout:
         each pair with its earlier block first; so does this, once per pair,
         in one narrow phase that finds both the touch and the depth.
         """
-        touching = set()
-        for other in self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,)):
-            first, second = (key, other) if self._seq[other] > self._seq[key] else (other, key)
-            touches, depth = self._world.contact(first, second)
-            if touches:
-                touching.add(other)
-                if depth is not None and depth > tol.contact_depth:
-                    self._collisions[(min(key, other), max(key, other))] = depth
-        return touching
+        others = self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,))
+        seq = self._seq[key]
+        found = self._world.contacts(key, others, [self._seq[other] > seq for other in others])
+        for other, depth in found.items():
+            if depth > tol.contact_depth:
+                self._collisions[(min(key, other), max(key, other))] = depth
+        return set(found)
