@@ -57,11 +57,7 @@ def volume_inside(block: Block, pose: Pose, prism: ConvexPolytope) -> float:
     if apex is None:
         return _trimmed_volume(block, pose, normals, offsets)
     if len(normals) == 1:
-        # Each surface triangle's product from the apex, from the block frame's (see _face_products),
-        # and its vertices' distances to the plane, which the vertex test has found already.
-        det, normal = _face_products(block)
-        triple = det + normal @ (pose.rotation.T @ (pose.position - apex))
-        return _clipped_triple_sum(triple, excess[:, np.flatnonzero(crossed)[0]][block.faces]) / 6.0
+        return _cut_by_one_plane(block, pose, excess[:, np.flatnonzero(crossed)[0]], apex)
     # One block: clip its triangles by every crossed plane but the last, plane by plane (the batch's
     # bookkeeping costs more here); the last plane's cut is summed without building its triangles.
     tri = world[block.faces] - apex
@@ -69,6 +65,33 @@ def volume_inside(block: Block, pose: Pose, prism: ConvexPolytope) -> float:
     for n in normals[:-1]:
         tri, owner = _clip_triangles(tri, owner, tri @ n)
     return _clipped_triple_sum(_triple(tri), tri @ normals[-1]) / 6.0
+
+
+def volume_below(block: Block, pose: Pose, normal: np.ndarray, offset: float) -> float:
+    """Volume of ``block`` at ``pose`` on the side ``normal . p <= offset`` of a plane, m^3 (exact).
+
+    ``normal`` is a unit vector. As :func:`volume_inside` cuts a block that
+    crosses one plane of its prism: no triangle is built.
+    """
+    distance = block.vertices @ (pose.rotation.T @ normal) + (float(pose.position @ normal) - offset)
+    if distance.max() <= 0.0:
+        return block.volume
+    if distance.min() >= 0.0:
+        return 0.0
+    return _cut_by_one_plane(block, pose, distance, normal * offset)
+
+
+def _cut_by_one_plane(block: Block, pose: Pose, distance: np.ndarray, apex: np.ndarray) -> float:
+    """Volume of the posed block on the inner side of one plane through ``apex`` (world frame), m^3.
+
+    ``distance`` (n,) holds the block's vertices' signed distances to the
+    plane. Each surface triangle's product from the apex comes from the block
+    frame's (:func:`_face_products`), and the plane's cut from the distances
+    (:func:`_clipped_triple_sum`).
+    """
+    det, normal = _face_products(block)
+    triple = det + normal @ (pose.rotation.T @ (pose.position - apex))
+    return _clipped_triple_sum(triple, distance[block.faces]) / 6.0
 
 
 def volumes_inside(placed: Sequence[tuple[int, Block, Pose]], prism: ConvexPolytope) -> np.ndarray:

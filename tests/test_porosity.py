@@ -303,7 +303,7 @@ def test_convex_polytope_volume_matches_hull():
 
 @pytest.mark.parametrize("name", ["shake-4t", "tetrapod:2.0"])
 def test_volume_inside_matches_the_boolean_against_the_prism(mini, name):
-    """One posed block against the design prism, straddling one, two or three of its planes.
+    """A posed block against the design prism, straddling one, two or three of its planes; below a plane.
 
     The one-plane cut sums the triangles' shares in closed form, the two-plane
     cut finds its apex in closed form: both against manifold3d's intersection.
@@ -311,7 +311,7 @@ def test_volume_inside_matches_the_boolean_against_the_prism(mini, name):
     import manifold3d as m3
 
     from geometry.blocks import get_block
-    from geometry.clip import volume_inside
+    from geometry.clip import volume_below, volume_inside
     from geometry.constants import tol
 
     block = get_block(name)
@@ -332,4 +332,10 @@ def test_volume_inside_matches_the_boolean_against_the_prism(mini, name):
         posed = block.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
         expected = (posed ^ solid).volume()
         assert volume_inside(block, pose, prism) == pytest.approx(expected, abs=1e-9, rel=1e-9)
+        # And below a plane of any direction through the block (the live layout's volume above the crest).
+        normal = random_quaternion(rng)[1:]
+        normal /= np.linalg.norm(normal)
+        offset = float(normal @ pose.position) + rng.uniform(-1.0, 1.0)
+        below = posed.trim_by_plane(-normal, -offset).volume()
+        assert volume_below(block, pose, normal, offset) == pytest.approx(below, abs=1e-9, rel=1e-9)
     assert seen.get(1, 0) >= 10 and seen.get(2, 0) >= 10, seen

@@ -31,8 +31,8 @@ porosity --method exact``'s on the same blocks, computed by the same functions:
   "Touches" is FCL's answer for the pair asked earlier block first, as
   ``geometry.collision.overlap_groups`` asks it.
 * **Above the crest** (``protruding``): the block's volume above the design
-  crest's plane ``z = height``, by manifold3d's plane trim, for blocks that
-  reach above it.
+  crest's plane ``z = height``, cut by :func:`geometry.clip.volume_below`, for
+  blocks that reach above it.
 
 World frame, metres and cubic metres throughout.
 """
@@ -45,7 +45,7 @@ import manifold3d as m3
 import numpy as np
 
 from geometry.blocks import Block
-from geometry.clip import volume_inside
+from geometry.clip import volume_below, volume_inside
 from geometry.collision import CollisionWorld
 from geometry.constants import tol
 from geometry.pose import Pose
@@ -84,6 +84,9 @@ class Placed:
     inside_m3: float
     outside_tolerance_m3: float
     above_crest_m3: float
+
+
+_UP = np.array([0.0, 0.0, 1.0])
 
 
 def _pair(a: int, b: int) -> tuple[int, int]:
@@ -189,7 +192,7 @@ class LiveLayout:
         solid = _solid(block, pose)
         inside = volume_inside(block, pose, self._prism)
         outside = outside_volume(block, pose, self._zone)
-        above = self._above_crest(block, pose, solid)
+        above = self._above_crest(block, pose)
         self._world.add(key, block, pose)
         touching = self._contacts(key, block, pose)
         parts = []
@@ -259,12 +262,12 @@ class LiveLayout:
             common = common.trim_by_plane(-n, -d)  # keep n . p <= d
         return float(common.volume())
 
-    def _above_crest(self, block: Block, pose: Pose, solid: m3.Manifold) -> float:
-        """Volume of the posed block (its ``solid``) above the design crest's plane, m^3."""
+    def _above_crest(self, block: Block, pose: Pose) -> float:
+        """Volume of the posed block above the design crest's plane, m^3."""
         top = float((block.vertices @ pose.rotation[2] + pose.position[2]).max())
         if top <= self._crest + tol.distance:
             return 0.0
-        return float(solid.trim_by_plane(np.array([0.0, 0.0, 1.0]), self._crest).volume())
+        return max(0.0, block.volume - volume_below(block, pose, _UP, self._crest))
 
     def _contacts(self, key: int, block: Block, pose: Pose) -> set[int]:
         """The blocks that block ``key`` (just added to the world) touches; records its collisions.
