@@ -201,7 +201,8 @@ class LiveLayout:
             self._parts[_pair(key, other)] = part = None if part.is_empty() else part
             if part is not None:
                 parts.append(part)
-        shared = self._inside(parts)
+        # A block wholly inside the convex prism has every part of it inside.
+        shared = self._inside(parts, trim=inside < block.volume)
         self._filled += inside - shared
         for other in touching:
             self._shared_now.pop(other, None)
@@ -226,7 +227,8 @@ class LiveLayout:
         parts = [self._parts.pop(_pair(key, other)) for other in touching]
         shared = self._shared_now.pop(key, None)
         if shared is None:
-            shared = self._inside([part for part in parts if part is not None])
+            kept = [part for part in parts if part is not None]
+            shared = self._inside(kept, trim=p.inside_m3 < p.block.volume)
         self._filled -= p.inside_m3 - shared
         for other in touching:
             self._shared_now.pop(other, None)
@@ -242,8 +244,8 @@ class LiveLayout:
 
     # --- the checks ---------------------------------------------------------
 
-    def _inside(self, parts: list[m3.Manifold]) -> float:
-        """Volume of the union of ``parts`` inside the design prism, m^3.
+    def _inside(self, parts: list[m3.Manifold], trim: bool = True) -> float:
+        """Volume of the union of ``parts`` inside the design prism, m^3 (of the union, if not ``trim``).
 
         ``parts`` are a block's intersections with each block it touches:
         k ∩ (j1 ∪ j2 ...) is (k ∩ j1) ∪ (k ∩ j2) ..., and each pair's
@@ -253,6 +255,8 @@ class LiveLayout:
         if not parts:
             return 0.0
         common = parts[0] if len(parts) == 1 else m3.Manifold.batch_boolean(parts, m3.OpType.Add)
+        if not trim:
+            return float(common.volume())
         # Trim by the prism's planes that the common part crosses, as geometry.porosity trims unions.
         box = np.array(common.bounding_box()).reshape(2, 3)
         corners = np.array([[box[i, 0], box[j, 1], box[k, 2]]
