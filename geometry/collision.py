@@ -19,6 +19,7 @@ a time and queries only that block against its neighbours.
 
 from __future__ import annotations
 
+import math
 import weakref
 from collections import defaultdict
 from collections.abc import Iterable, Sequence
@@ -95,9 +96,9 @@ class _Entry:
         boxes += pose.position
         self.boxes = boxes
         #: The whole block's box, (min x, y, z, max x, y, z) as Python floats.
-        self.box = tuple(float(v) for v in (*boxes[:, 0].min(axis=0), *boxes[:, 1].max(axis=0)))
+        self.box = (*boxes[:, 0].min(axis=0).tolist(), *boxes[:, 1].max(axis=0).tolist())
         self.centre = pose.position
-        self.xyz = tuple(float(v) for v in pose.position)  # for the broadphase's scalar arithmetic
+        self.xyz = tuple(pose.position.tolist())  # for the broadphase's scalar arithmetic
         self._transform = None
         self._objects: list[fcl.CollisionObject | None] = [None] * len(starts)
 
@@ -146,8 +147,9 @@ class CollisionWorld:
         return other
 
     def _cell_of(self, p: np.ndarray) -> tuple[int, int, int]:
-        c = np.floor(p / self.cell).astype(int)
-        return int(c[0]), int(c[1]), int(c[2])
+        x, y, z = p.tolist()
+        cell = self.cell
+        return math.floor(x / cell), math.floor(y / cell), math.floor(z / cell)
 
     def add(self, key: int, block: Block, pose: Pose) -> None:
         cell = self._cell_of(pose.position)
