@@ -20,7 +20,10 @@ The pipeline, each step a pluggable strategy instance:
    an explicit step, off by default;
 4. a physics settle confirms that the layout stands; unstable blocks are
    repaired (taken out, with whatever rests on them, and placed again) and
-   the layout is settled again.
+   the layout is settled again;
+5. if the layout is still short of its count and the time it took is left
+   before the deadline, steps 1-4 run again on the same random stream (up to
+   ``ATTEMPTS`` in all), and the best layout is kept.
 
 Validity is never loosened: if the required count cannot be reached, the best
 valid layout found is returned with the count it reached.
@@ -309,48 +312,24 @@ def optimize(
         report=report,
         clock=clock,
     )
-    phase = Phase(kept_build(scene, keep)) if keep else None
-    phases = []
-    gap: dict[str, Any] = {}
     strategies_run = list(strategies) if strategies is not None else default_strategies(bound)
-    for strategy in strategies_run:
+    end = start + time_limit - min(RESERVE_SHARE * time_limit, check_reserve(scene) + coverage_reserve(scene))
+    tried: list[_Attempt] = []
+    for attempt in range(1, ATTEMPTS + 1):
         t0 = clock()
-        phase = strategy.run(problem, phase, rng)
-        phases.append({"strategy": strategy.name, "seconds": clock() - t0, "blocks": len(phase.build),
-                       "porosity_percent": phase.build.porosity.percent, **phase.stats.to_dict()})
-        if isinstance(phase.stats, BoundStats) and not phase.stats.skipped:
-            s = phase.stats
-            gap = {"layer": "ground", "slab_m": s.slab_m, "heuristic_m3": s.heuristic_m3,
-                   "objective_m3": s.objective_m3, "bound_m3": s.bound_m3, "gap_percent": s.gap_percent,
-                   "optimal": s.optimal, "candidates": s.candidates, "seconds": s.seconds}
-    build = phase.build if phase is not None else Build(scene)
-    settle_info: dict[str, Any] = {}
-    stable: bool | None = None
-    if settle_layout:
-        end = start + time_limit - min(RESERVE_SHARE * time_limit, check_reserve(scene)
-                                       + coverage_reserve(scene))
-        origin = phase.origin if phase else None
-        build, confirmation = confirm(problem, build, rng, origin, end)
-        # Short of the count, the pocket fill (if it is among the strategies) goes on from the
-        # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
-        # come to rest lower, and what did not stand is out.
-        fill = next((s for s in strategies_run if isinstance(s, PocketFill)), None)
-        for _ in range(REFILLS if fill is not None else 0):
-            deadline = end - max(settle_reserve(scene), REFILL_SETTLES * confirmation.seconds)
-            if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
-                break
-            t0 = clock()
-            more = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
-            if len(more) <= len(build):
-                break
-            again, check = confirm(problem, more, rng, origin, end)
-            if len(again) <= len(build) or not check.stable:
-                break
-            phases.append({"strategy": "refill", "seconds": clock() - t0, "blocks": len(again),
-                           "porosity_percent": again.porosity.percent, "added": len(again) - len(build)})
-            build, confirmation = again, check
-        settle_info = confirmation.to_dict()
-        stable = confirmation.stable
+        tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
+        # Another attempt only while every one so far is short of its count or does not stand,
+        # and the last one's time is left before the search's deadline.
+        if tried[-1].reached(problem) or clock() + (clock() - t0) > problem.deadline:
+            break
+    chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
+    best = tried[chosen]
+    build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
+    phases = [p for t in tried for p in t.phases]
+    if len(tried) > 1:
+        phases.append({"strategy": "attempts", "attempts": len(tried), "chosen": chosen + 1,
+                       "blocks": [len(t.build) for t in tried],
+                       "porosity_percent": [t.build.porosity.percent for t in tried]})
     layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed,
                                          **({"kept": len(keep)} if keep else {})}})
     # The coverage is measured if the time left allows it (a scene far too long for its limit
@@ -378,6 +357,77 @@ def optimize(
         kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
         if keep else None,
     )
+
+
+#: Searches a run may make: when one ends short of the required count (or with a layout that
+#: does not stand) with its own time still left before the deadline, the pipeline runs again
+#: from the start on the same random stream, and the best layout of all is kept. The first
+#: attempt is the whole run wherever the count is reached.
+ATTEMPTS = 3
+
+
+@dataclass
+class _Attempt:
+    """One run of the strategies and the confirming settle."""
+
+    build: Build
+    phases: list[dict[str, Any]]
+    gap: dict[str, Any]
+    settle: dict[str, Any]
+    stable: bool | None
+
+    def reached(self, problem: Problem) -> bool:
+        return len(self.build) >= problem.required and self.stable is not False
+
+    def key(self, problem: Problem) -> tuple[int, bool, float]:
+        """Better is larger: more blocks (up to the count), standing, porosity nearer the target."""
+        off = abs(self.build.porosity.percent - problem.target) if len(self.build) else np.inf
+        return min(len(self.build), problem.required), self.stable is not False, -off
+
+
+def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, keep: Sequence[Placement],
+             rng: np.random.Generator, settle_layout: bool, end: float, attempt: int) -> _Attempt:
+    """The strategies in order from an empty (or kept) build, then the settle that confirms it."""
+    clock = problem.clock
+    phase = Phase(kept_build(scene, keep)) if keep else None
+    phases = []
+    gap: dict[str, Any] = {}
+    for strategy in strategies:
+        t0 = clock()
+        phase = strategy.run(problem, phase, rng)
+        phases.append({"strategy": strategy.name, "attempt": attempt, "seconds": clock() - t0,
+                       "blocks": len(phase.build), "porosity_percent": phase.build.porosity.percent,
+                       **phase.stats.to_dict()})
+        if isinstance(phase.stats, BoundStats) and not phase.stats.skipped:
+            s = phase.stats
+            gap = {"layer": "ground", "slab_m": s.slab_m, "heuristic_m3": s.heuristic_m3,
+                   "objective_m3": s.objective_m3, "bound_m3": s.bound_m3, "gap_percent": s.gap_percent,
+                   "optimal": s.optimal, "candidates": s.candidates, "seconds": s.seconds}
+    build = phase.build if phase is not None else Build(scene)
+    if not settle_layout:
+        return _Attempt(build, phases, gap, {}, None)
+    origin = phase.origin if phase else None
+    build, confirmation = confirm(problem, build, rng, origin, end)
+    # Short of the count, the pocket fill (if it is among the strategies) goes on from the
+    # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
+    # come to rest lower, and what did not stand is out.
+    fill = next((s for s in strategies if isinstance(s, PocketFill)), None)
+    for _ in range(REFILLS if fill is not None else 0):
+        deadline = end - max(settle_reserve(scene), REFILL_SETTLES * confirmation.seconds)
+        if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
+            break
+        t0 = clock()
+        more = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
+        if len(more) <= len(build):
+            break
+        again, check = confirm(problem, more, rng, origin, end)
+        if len(again) <= len(build) or not check.stable:
+            break
+        phases.append({"strategy": "refill", "attempt": attempt, "seconds": clock() - t0,
+                       "blocks": len(again), "porosity_percent": again.porosity.percent,
+                       "added": len(again) - len(build)})
+        build, confirmation = again, check
+    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable)
 
 
 def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:
