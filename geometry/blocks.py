@@ -492,10 +492,47 @@ _COACD_MAX_HULLS = 16
 _COACD_SEED = 0
 
 
+def _decomposition_frame(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """A rotation that lines a mesh's two largest flat directions up with z and x.
+
+    CoACD cuts along the axes of the frame it is given. A block's file may
+    come turned any way: the exported Shake Block turned by an arbitrary
+    rotation decomposed into pieces whose union is 4.4 % larger than the
+    block, against 1.1 % when first turned by this frame. Face normals are
+    grouped by direction (a normal and its opposite are one), weighted by
+    area; the heaviest group is z, and the heaviest one near square to it is x.
+
+    Returns
+    -------
+    (3, 3) float
+        Rows: the frame's axes in the mesh's frame (``vertices @ R.T`` is the
+        mesh in the frame, ``local @ R`` back).
+    """
+    tri = vertices[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(cross, axis=1)
+    keep = area > 0.0
+    normal, area = cross[keep] / area[keep, None], area[keep]
+    largest = np.abs(normal).argmax(axis=1)
+    normal *= np.sign(normal[np.arange(len(normal)), largest])[:, None]  # one sign per direction
+    groups, member = np.unique(np.round(normal / 0.02).astype(np.int64), axis=0, return_inverse=True)
+    member = member.ravel()
+    weight = np.bincount(member, weights=area, minlength=len(groups))
+    mean = np.zeros((len(groups), 3))
+    np.add.at(mean, member, normal * area[:, None])
+    mean /= np.linalg.norm(mean, axis=1)[:, None]
+    order = np.argsort(-weight, kind="stable")
+    z = mean[order[0]]
+    x = next((mean[j] for j in order[1:] if abs(mean[j] @ z) < 0.05), np.eye(3)[np.abs(z).argmin()])
+    x = x - (x @ z) * z
+    x /= np.linalg.norm(x)
+    return np.array([x, np.cross(z, x), z])
+
+
 def _coacd_pieces(
     vertices: np.ndarray, faces: np.ndarray, digest: str, path: str
 ) -> list[np.ndarray]:
-    key = f"{digest}-t{_COACD_THRESHOLD}-h{_COACD_MAX_HULLS}-s{_COACD_SEED}"
+    key = f"{digest}-t{_COACD_THRESHOLD}-h{_COACD_MAX_HULLS}-s{_COACD_SEED}-framed"
     cached = cache_dir() / "coacd" / f"{key}.npz"
     if cached.is_file():
         with np.load(cached) as data:
@@ -505,13 +542,14 @@ def _coacd_pieces(
     except ImportError as exc:  # pragma: no cover - coacd is a dependency
         raise InputError(f"{path}: mesh blocks need CoACD (pip install coacd)") from exc
     coacd.set_log_level("error")
+    frame = _decomposition_frame(np.asarray(vertices, float), np.asarray(faces))
     parts = coacd.run_coacd(
-        coacd.Mesh(np.asarray(vertices, float), np.asarray(faces, np.int32)),
+        coacd.Mesh(np.asarray(vertices, float) @ frame.T, np.asarray(faces, np.int32)),
         threshold=_COACD_THRESHOLD,
         max_convex_hull=_COACD_MAX_HULLS,
         seed=_COACD_SEED,
     )
-    pieces = [np.asarray(v, float) for v, _ in parts]
+    pieces = [np.asarray(v, float) @ frame for v, _ in parts]
     cached.parent.mkdir(parents=True, exist_ok=True)
     tmp = cached.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(tmp, **{f"p{i}": v for i, v in enumerate(pieces)})
