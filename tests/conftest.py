@@ -64,6 +64,20 @@ def cube() -> Block:
     return get_block("box:1x1x1")
 
 
+def export_turned(block: Block, path: Path) -> Path:
+    """Write ``block``'s mesh turned by an arbitrary rotation and moved off its centroid, as a
+    user's file may come (Euler xyz 37, -121, 68 degrees; 0.71, -1.3, 2.45 m)."""
+    from scipy.spatial.transform import Rotation
+
+    mesh = block.trimesh.copy()
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_euler("xyz", [37.0, -121.0, 68.0], degrees=True).as_matrix()
+    pose[:3, 3] = [0.71, -1.3, 2.45]
+    mesh.apply_transform(pose)
+    mesh.export(path)
+    return path
+
+
 def standing(block: Block, x: float, y: float, yaw: float = 0.0, ground: float = 0.0) -> Pose:
     """``block`` standing in its block-frame orientation, turned by ``yaw``, on z = ground."""
     q = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])

@@ -8,6 +8,7 @@ import trimesh
 
 from geometry.blocks import LEG_DIRECTIONS, get_block, mesh_block, tetrapod
 from geometry.errors import InputError
+from tests.conftest import export_turned
 
 
 def test_shake_block_matches_table_i(shake):
@@ -105,7 +106,6 @@ def test_a_turned_mesh_is_cut_as_tightly_as_an_upright_one(tmp_path, shake):
     so the exported Shake Block turned any way is cut into pieces that fit it as closely as
     the upright one's (measured: 4.4 % larger than the block without the turn, 0.7 % with it)."""
     import manifold3d as m3
-    from scipy.spatial.transform import Rotation
 
     def excess(block):
         union = m3.Manifold.batch_boolean([m3.Manifold.hull_points(p.vertices) for p in block.pieces],
@@ -114,13 +114,7 @@ def test_a_turned_mesh_is_cut_as_tightly_as_an_upright_one(tmp_path, shake):
 
     upright = tmp_path / "upright.stl"
     shake.export(upright)
-    turned = tmp_path / "turned.stl"
-    mesh = shake.trimesh.copy()
-    matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_euler("xyz", [37.0, -121.0, 68.0], degrees=True).as_matrix()
-    matrix[:3, 3] = [0.71, -1.3, 2.45]
-    mesh.apply_transform(matrix)
-    mesh.export(turned)
+    turned = export_turned(shake, tmp_path / "turned.stl")
     (up_excess, up_covered), (excess_, covered) = (excess(get_block(f"mesh:{p}")) for p in (upright, turned))
     assert covered > 0.999 and up_covered > 0.999  # the pieces still cover the block
     assert excess_ < 0.02 and excess_ < 2.0 * up_excess + 0.005, (excess_, up_excess)

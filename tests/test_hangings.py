@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from geometry.blocks import get_block
 from optimizer.search.hangings import BASE, families, hanging_of, symmetry
+from tests.conftest import export_turned
 
 
 def _profile(vertices: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -21,14 +22,7 @@ def _profile(vertices: np.ndarray, q: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def turned(tmp_path_factory, shake):
     """The Shake Block exported, turned by an arbitrary rotation and moved off its centroid."""
-    path = tmp_path_factory.mktemp("mesh") / "turned.stl"
-    mesh = shake.trimesh.copy()
-    pose = np.eye(4)
-    pose[:3, :3] = Rotation.from_euler("xyz", [37.0, -121.0, 68.0], degrees=True).as_matrix()
-    pose[:3, 3] = [0.71, -1.3, 2.45]
-    mesh.apply_transform(pose)
-    mesh.export(path)
-    return get_block(f"mesh:{path}")
+    return get_block(f"mesh:{export_turned(shake, tmp_path_factory.mktemp('mesh') / 'turned.stl')}")
 
 
 def test_a_turned_mesh_rests_the_ways_the_built_in_block_does(shake, turned):
