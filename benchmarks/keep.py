@@ -62,7 +62,8 @@ def main() -> None:
                 "kept_faults": sum(len(v) for k, v in r.kept.items() if k != "blocks"),
                 "bare_share_percent": round(cov.get("bare_share_percent", float("nan")), 2),
                 "seconds": round(r.seconds, 1),
-                "phases": " ".join(f"{p['strategy']}:{p['blocks']}" for p in r.phases),
+                "phases": " ".join(f"{p['strategy']}:{p['blocks']}" for p in r.phases
+                                   if p["strategy"] != "attempts"),
                 "repaired": r.settle.get("repaired"),
             }
             rows.append(row)

@@ -70,15 +70,15 @@ def volume_inside(block: Block, pose: Pose, prism: ConvexPolytope) -> float:
 def volume_below(block: Block, pose: Pose, normal: np.ndarray, offset: float) -> float:
     """Volume of ``block`` at ``pose`` on the side ``normal . p <= offset`` of a plane, m^3 (exact).
 
-    ``normal`` is a unit vector. As :func:`volume_inside` cuts a block that
-    crosses one plane of its prism: no triangle is built.
+    As :func:`volume_inside` cuts a block that crosses one plane of its prism:
+    no triangle is built.
     """
     distance = block.vertices @ (pose.rotation.T @ normal) + (float(pose.position @ normal) - offset)
     if distance.max() <= 0.0:
         return block.volume
     if distance.min() >= 0.0:
         return 0.0
-    return _cut_by_one_plane(block, pose, distance, normal * offset)
+    return _cut_by_one_plane(block, pose, distance, normal * (offset / float(normal @ normal)))
 
 
 def _cut_by_one_plane(block: Block, pose: Pose, distance: np.ndarray, apex: np.ndarray) -> float:

@@ -259,7 +259,8 @@ def optimize(
     seed : int
         All randomness comes from ``numpy.random.default_rng(seed)``; the same
         seed gives the same layout, byte for byte, as long as ``time_limit``
-        does not cut the strategies' fixed work short.
+        neither cuts the strategies' fixed work short nor decides whether
+        another attempt fits (``ATTEMPTS``).
     time_limit : float, seconds, optional
         Wall-clock budget of the whole run, checks included: it is kept to
         within 2 s. The best valid layout found so far is returned when it
@@ -379,10 +380,10 @@ class _Attempt:
     def reached(self, problem: Problem) -> bool:
         return len(self.build) >= problem.required and self.stable is not False
 
-    def key(self, problem: Problem) -> tuple[int, bool, float]:
-        """Better is larger: more blocks (up to the count), standing, porosity nearer the target."""
+    def key(self, problem: Problem) -> tuple[bool, int, float]:
+        """Better is larger: standing, then more blocks (up to the count), then porosity nearer the target."""
         off = abs(self.build.porosity.percent - problem.target) if len(self.build) else np.inf
-        return min(len(self.build), problem.required), self.stable is not False, -off
+        return self.stable is not False, min(len(self.build), problem.required), -off
 
 
 def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, keep: Sequence[Placement],

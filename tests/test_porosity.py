@@ -338,4 +338,6 @@ def test_volume_inside_matches_the_boolean_against_the_prism(mini, name):
         offset = float(normal @ pose.position) + rng.uniform(-1.0, 1.0)
         below = posed.trim_by_plane(-normal, -offset).volume()
         assert volume_below(block, pose, normal, offset) == pytest.approx(below, abs=1e-9, rel=1e-9)
+        doubled = volume_below(block, pose, 2.0 * normal, 2.0 * offset)  # the same plane, a longer normal
+        assert doubled == pytest.approx(below, abs=1e-9, rel=1e-9)
     assert seen.get(1, 0) >= 10 and seen.get(2, 0) >= 10, seen
