@@ -29,6 +29,7 @@ import os
 from dataclasses import dataclass
 from functools import cache, cached_property, lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import manifold3d as m3
 import numpy as np
@@ -40,6 +41,9 @@ from .constants import CONCRETE_DENSITY, tol
 from .errors import InputError
 from .fileio import atomic_write
 from .polytope import ConvexPolytope, PieceStack
+
+if TYPE_CHECKING:
+    from .pose import Pose
 
 #: Table I of the reference paper: the 4-ton Shake Block.
 SHAKE_4T_VOLUME = 1.735  # m^3
@@ -87,6 +91,10 @@ class Block:
     def manifold(self) -> m3.Manifold:
         """The solid as a manifold3d object, block frame."""
         return _manifold(self.vertices, self.faces, self.name)
+
+    def posed_solid(self, pose: Pose) -> m3.Manifold:
+        """The solid moved to ``pose`` (block frame to world frame), as a manifold3d object."""
+        return self.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
 
     @cached_property
     def volume(self) -> float:

@@ -251,7 +251,7 @@ def _common_point(normals: np.ndarray, offsets: np.ndarray) -> np.ndarray | None
 
 def _trimmed_volume(block: Block, pose: Pose, normals: np.ndarray, offsets: np.ndarray) -> float:
     """Volume of the posed block's solid on the inner side of every plane, by manifold3d."""
-    solid = block.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
+    solid = block.posed_solid(pose)
     for n, d in zip(normals, offsets, strict=True):
         # trim_by_plane keeps n' . p >= d'; we keep n . p <= d.
         solid = solid.trim_by_plane(-n, -d)

@@ -235,44 +235,25 @@ class CollisionWorld:
         One narrow phase for both answers: FCL is asked of each pair of pieces
         whose boxes overlap, ``key``'s piece first where ``first[n]`` and
         ``others[n]``'s first elsewhere, as :meth:`pairs` asks a pair with its
-        earlier block first. The piece boxes of all of ``others`` are tested
-        in one vectorised pass.
+        earlier block first. The piece boxes of all of ``others`` with as
+        many pieces as ``key`` are tested in one vectorised pass.
 
         Returns
         -------
         dict of other key -> deepest penetration over their piece pairs (metres), for the touching ones.
         """
         e = self._entries[key]
-        ba = e.box
-        keys, near, order = [], [], []
-        for other, ours in zip(others, first, strict=True):
-            bb = self._entries[other].box
-            if (ba[0] <= bb[3] and bb[0] <= ba[3] and ba[1] <= bb[4] and bb[1] <= ba[4]
-                    and ba[2] <= bb[5] and bb[2] <= ba[5]):
-                keys.append(other)
-                near.append(self._entries[other])
-                order.append(ours)
+        near = [(other, self._entries[other], ours) for other, ours in zip(others, first, strict=True)
+                if _boxes_meet(e.box, self._entries[other].box)]
+        # The piece-box overlaps of every neighbour with as many pieces as this block, in one pass.
+        alike = [o.boxes for _, o, _ in near if len(o.boxes) == len(e.boxes)]
+        batch = iter(_piece_overlaps(e.boxes[None], np.stack(alike)) if alike else ())
         out: dict[int, float] = {}
-        if not near:
-            return out
-        if len({len(o.boxes) for o in near}) > 1:  # blocks of other piece counts: a pair at a time
-            for other, o, ours in zip(keys, near, order, strict=True):
-                depth = _pair_depth(e, o, -np.inf) if ours else _pair_depth(o, e, -np.inf)
-                if depth is not None:
-                    out[other] = depth
-            return out
-        a, b = e.boxes, np.stack([o.boxes for o in near])  # (p, 2, 3), (m, q, 2, 3)
-        ours_lo, ours_hi = a[None, :, None, 0], a[None, :, None, 1]
-        overlap = np.all((ours_lo <= b[:, None, :, 1]) & (b[:, None, :, 0] <= ours_hi), axis=3)  # (m, p, q)
-        for n, i, j in zip(*(v.tolist() for v in np.nonzero(overlap)), strict=True):
-            o = near[n]
-            result = fcl.CollisionResult()
-            hit = (fcl.collide(e.object(i), o.object(j), _REQUEST_DEPTH, result) if order[n]
-                   else fcl.collide(o.object(j), e.object(i), _REQUEST_DEPTH, result))
-            if hit:
-                depth = max(c.penetration_depth for c in result.contacts)
-                if depth > out.get(keys[n], -np.inf):
-                    out[keys[n]] = depth
+        for other, o, ours in near:
+            overlap = next(batch) if len(o.boxes) == len(e.boxes) else _piece_overlaps(e.boxes, o.boxes)
+            depth = _pair_depth(e, o, -np.inf, overlap) if ours else _pair_depth(o, e, -np.inf, overlap.T)
+            if depth is not None:
+                out[other] = depth
         return out
 
     def pairs(self, threshold: float = tol.contact_depth) -> list[Collision]:
@@ -311,8 +292,22 @@ def _batch_box_overlaps(entries: list[_Entry], i: np.ndarray, j: np.ndarray) -> 
     if len(counts) != 1 or len(i) == 0:
         return None
     boxes = np.stack([e.boxes for e in entries])  # (n, p, 2, 3)
-    a, b = boxes[i], boxes[j]
-    return np.all((a[:, :, None, 0] <= b[:, None, :, 1]) & (b[:, None, :, 0] <= a[:, :, None, 1]), axis=3)
+    return _piece_overlaps(boxes[i], boxes[j])
+
+
+def _piece_overlaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Which piece boxes overlap: ``a`` (..., p, 2, 3) and ``b`` (..., q, 2, 3) give (..., p, q) bool.
+
+    Leading axes broadcast, so one block's boxes go against a stack of others' in one pass.
+    """
+    return np.all((a[..., :, None, 0, :] <= b[..., None, :, 1, :])
+                  & (b[..., None, :, 0, :] <= a[..., :, None, 1, :]), axis=-1)
+
+
+def _boxes_meet(ba: tuple[float, ...], bb: tuple[float, ...]) -> bool:
+    """Whether two whole-block boxes ``(min x, y, z, max x, y, z)`` overlap (Python floats: no numpy call)."""
+    return (ba[0] <= bb[3] and bb[0] <= ba[3] and ba[1] <= bb[4] and bb[1] <= ba[4]
+            and ba[2] <= bb[5] and bb[2] <= ba[5])
 
 
 _REQUEST_DEPTH = fcl.CollisionRequest(num_max_contacts=1, enable_contact=True)
@@ -328,15 +323,9 @@ def _pair_depth(a: _Entry, b: _Entry, threshold: float, overlap: np.ndarray | No
     at the first touching piece pair.
     """
     if overlap is None:
-        ba, bb = a.box, b.box
-        if not (ba[0] <= bb[3] and bb[0] <= ba[3] and ba[1] <= bb[4] and bb[1] <= ba[4]
-                and ba[2] <= bb[5] and bb[2] <= ba[5]):
+        if not _boxes_meet(a.box, b.box):
             return None  # the blocks' own boxes are apart: no piece pair can touch
-        # Piece bounding boxes that overlap, all pairs in one vectorised test.
-        overlap = np.all(
-            (a.boxes[:, None, 0] <= b.boxes[None, :, 1]) & (b.boxes[None, :, 0] <= a.boxes[:, None, 1]),
-            axis=2,
-        )
+        overlap = _piece_overlaps(a.boxes, b.boxes)
     deepest = None
     for i, j in zip(*np.nonzero(overlap), strict=True):
         oa, ob = a.object(i), b.object(j)

@@ -170,9 +170,7 @@ def exact_filled_volume(prism: ConvexPolytope, placed: Placed, assume_disjoint: 
 
 def _union_volume_inside(members: Placed, prism: ConvexPolytope) -> float:
     """Volume of the union of posed blocks, clipped to a convex prism."""
-    solids = [
-        b.manifold.transform(np.hstack([p.rotation, p.position[:, None]])) for _, b, p in members
-    ]
+    solids = [b.posed_solid(p) for _, b, p in members]
     union = m3.Manifold.batch_boolean(solids, m3.OpType.Add)
     for n, d in zip(prism.normals, prism.offsets, strict=True):
         union = union.trim_by_plane(-n, -d)

@@ -329,7 +329,7 @@ def test_volume_inside_matches_the_boolean_against_the_prism(mini, name):
         world = pose.apply(block.vertices)
         crossed = int(((world @ prism.normals.T - prism.offsets).max(axis=0) > tol.distance).sum())
         seen[crossed] = seen.get(crossed, 0) + 1
-        posed = block.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
+        posed = block.posed_solid(pose)
         expected = (posed ^ solid).volume()
         assert volume_inside(block, pose, prism) == pytest.approx(expected, abs=1e-9, rel=1e-9)
         # And below a plane of any direction through the block (the live layout's volume above the crest).

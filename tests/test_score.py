@@ -181,8 +181,7 @@ def test_two_blocks_pushed_into_each_other(scene, ref_layout, reference, base):
     for k in (a, b):
         change += volume_inside(block, _pose(layout, k), design) - volume_inside(block, _pose(ref_layout, k),
                                                                                    design)
-    solids = [block.manifold.transform(np.hstack([p.rotation, p.position[:, None]]))
-              for p in (_pose(layout, a), _pose(layout, b))]
+    solids = [block.posed_solid(p) for p in (_pose(layout, a), _pose(layout, b))]
     overlap = m3.Manifold.batch_boolean(solids, m3.OpType.Intersect)
     for n, d in zip(design.normals, design.offsets, strict=True):
         overlap = overlap.trim_by_plane(-n, -d)

@@ -93,11 +93,6 @@ def _pair(a: int, b: int) -> tuple[int, int]:
     return (a, b) if a < b else (b, a)
 
 
-def _solid(block: Block, pose: Pose) -> m3.Manifold:
-    """The posed block's solid, world frame."""
-    return block.manifold.transform(np.hstack([pose.rotation, pose.position[:, None]]))
-
-
 class LiveLayout:
     """The blocks of one session, with their checks kept up to date.
 
@@ -189,7 +184,7 @@ class LiveLayout:
         else:
             self._seq[key] = self._next_seq
             self._next_seq += 1
-        solid = _solid(block, pose)
+        solid = block.posed_solid(pose)
         inside = volume_inside(block, pose, self._prism)
         outside = outside_volume(block, pose, self._zone)
         above = self._above_crest(block, pose)
