@@ -15,6 +15,7 @@ from __future__ import annotations
 import weakref
 from collections.abc import Sequence
 
+import manifold3d as m3
 import numpy as np
 
 from .blocks import Block
@@ -251,11 +252,26 @@ def _common_point(normals: np.ndarray, offsets: np.ndarray) -> np.ndarray | None
 
 def _trimmed_volume(block: Block, pose: Pose, normals: np.ndarray, offsets: np.ndarray) -> float:
     """Volume of the posed block's solid on the inner side of every plane, by manifold3d."""
-    solid = block.posed_solid(pose)
-    for n, d in zip(normals, offsets, strict=True):
-        # trim_by_plane keeps n' . p >= d'; we keep n . p <= d.
-        solid = solid.trim_by_plane(-n, -d)
+    return solid_volume_inside(block.posed_solid(pose), normals, offsets)
+
+
+def solid_volume_inside(solid: m3.Manifold, normals: np.ndarray, offsets: np.ndarray) -> float:
+    """Volume of a manifold3d solid on the inner side (``n . p <= d``) of every plane, m^3.
+
+    The solid is trimmed only by the planes its bounding box crosses: the
+    others leave it whole. The exact porosity's unions of touching blocks and
+    the live layout's shared parts are both measured here.
+    """
+    box = np.array(solid.bounding_box()).reshape(2, 3)
+    corners = box[_CORNERS, [0, 1, 2]]  # (8, 3)
+    crossed = (corners @ normals.T - offsets).max(axis=0) > 0.0
+    for n, d in zip(normals[crossed], offsets[crossed], strict=True):
+        solid = solid.trim_by_plane(-n, -d)  # trim_by_plane keeps n' . p >= d'; we keep n . p <= d
     return float(solid.volume())
+
+
+#: Row (0: min, 1: max) of each coordinate at the eight corners of a box.
+_CORNERS = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
 
 
 def _clip_triangles(tri: np.ndarray, owner: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -48,7 +48,7 @@ import manifold3d as m3
 import numpy as np
 
 from .blocks import Block
-from .clip import volume_inside, volumes_inside
+from .clip import solid_volume_inside, volume_inside, volumes_inside
 from .collision import overlap_groups
 from .constants import MAX_VOXELS, tol
 from .errors import InputError
@@ -171,10 +171,7 @@ def exact_filled_volume(prism: ConvexPolytope, placed: Placed, assume_disjoint: 
 def _union_volume_inside(members: Placed, prism: ConvexPolytope) -> float:
     """Volume of the union of posed blocks, clipped to a convex prism."""
     solids = [b.posed_solid(p) for _, b, p in members]
-    union = m3.Manifold.batch_boolean(solids, m3.OpType.Add)
-    for n, d in zip(prism.normals, prism.offsets, strict=True):
-        union = union.trim_by_plane(-n, -d)
-    return float(union.volume())
+    return solid_volume_inside(m3.Manifold.batch_boolean(solids, m3.OpType.Add), prism.normals, prism.offsets)
 
 
 # --- voxels ----------------------------------------------------------------------

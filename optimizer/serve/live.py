@@ -45,7 +45,7 @@ import manifold3d as m3
 import numpy as np
 
 from geometry.blocks import Block
-from geometry.clip import volume_below, volume_inside
+from geometry.clip import solid_volume_inside, volume_below, volume_inside
 from geometry.collision import CollisionWorld
 from geometry.constants import tol
 from geometry.pose import Pose
@@ -218,7 +218,7 @@ class LiveLayout:
         self._world.remove(key)
         for other in touching:
             self._touching[other].discard(key)
-            self._collisions.pop((min(key, other), max(key, other)), None)
+            self._collisions.pop(_pair(key, other), None)
         parts = [self._parts.pop(_pair(key, other)) for other in touching]
         shared = self._shared_now.pop(key, None)
         if shared is None:
@@ -252,14 +252,8 @@ class LiveLayout:
         common = parts[0] if len(parts) == 1 else m3.Manifold.batch_boolean(parts, m3.OpType.Add)
         if not trim:
             return float(common.volume())
-        # Trim by the prism's planes that the common part crosses, as geometry.porosity trims unions.
-        box = np.array(common.bounding_box()).reshape(2, 3)
-        corners = np.array([[box[i, 0], box[j, 1], box[k, 2]]
-                            for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-        crossed = (corners @ self._prism.normals.T - self._prism.offsets).max(axis=0) > 0.0
-        for n, d in zip(self._prism.normals[crossed], self._prism.offsets[crossed], strict=True):
-            common = common.trim_by_plane(-n, -d)  # keep n . p <= d
-        return float(common.volume())
+        # Trimmed by the prism's planes as geometry.porosity trims its unions of touching blocks.
+        return solid_volume_inside(common, self._prism.normals, self._prism.offsets)
 
     def _above_crest(self, block: Block, pose: Pose) -> float:
         """Volume of the posed block above the design crest's plane, m^3."""
@@ -282,5 +276,5 @@ class LiveLayout:
         found = self._world.contacts(key, others, [self._seq[other] > seq for other in others])
         for other, depth in found.items():
             if depth > tol.contact_depth:
-                self._collisions[(min(key, other), max(key, other))] = depth
+                self._collisions[_pair(key, other)] = depth
         return set(found)
