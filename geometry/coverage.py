@@ -21,10 +21,9 @@ sample is at least the true distance and at most ``spacing`` more; only points
 that bound leaves undecided, and the points near the largest distance, are
 measured exactly.
 
-:class:`CoverageTracker` keeps the same count up to date as blocks are added
-and removed, on the sample bound alone (a point counts as covered only when a
-block sample is within ``H / 2``, so it never counts more than is covered): the
-optimizer lives on it.
+The optimizer measures its final layout with the same function
+(``optimizer.api``); the search itself does not aim for coverage yet
+(docs/coverage-study.md).
 """
 
 from __future__ import annotations

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
 import os
 import subprocess
 import sys
@@ -31,6 +33,33 @@ def test_the_tuner_finds_a_feasible_lattice_no_looser_than_the_staggered_bond(na
     bond = staggered(block).area_per_block
     assert lat.area_per_block < bond if denser else lat.area_per_block <= bond
     assert lat.area_per_block >= 0.999 * block.height**2 if not denser else True
+
+
+def test_the_tuner_races_its_runs_and_gives_the_last_round_to_the_densest():
+    """Successive halving, on a clock that ticks once a reading: three runs, two go on, one finishes."""
+    block = get_block("box:1.3x1.1x0.9")
+    ticks = itertools.count()
+    runs = [patterns._Run(block, ("rest-1", "rest-1"), 0), patterns._Run(block, ("rest-1", "rest-2"), 0),
+            patterns._Run(block, ("rest-1", "rest-2"), 1)]
+    patterns._race(runs, maxiter=10_000, seconds=90.0, clock=lambda: float(next(ticks)))
+    winner = min(runs, key=lambda r: r.area)
+    others = [r for r in runs if r is not winner]
+    assert winner.rounds == 1 + math.ceil(math.log2(len(runs)))
+    assert sorted(r.rounds for r in others) == [1, 2]
+    assert winner.generations > max(r.generations for r in others)
+    assert winner.lattice is not None and all(r.area >= winner.area for r in others)
+
+
+def test_a_tuned_lattice_is_spread_off_the_edge_of_feasibility(cube):
+    """Cubes all but face to face are feasible but jam on a mound; the tuner spreads them a hair."""
+    side = cube.height * (1 + 1e-6)  # a micrometre apart, as the tuner left the cube scene's cubes
+    tight = patterns.InterlockLattice(p=side, w=2 * side, q=0.0, u=side, v=side / 2, yaw_a=0.0, yaw_b=0.0,
+                                      family_a="rest-1", family_b="rest-1")
+    assert _lattice_penalty(_params(tight), cube, ("rest-1", "rest-1")) == pytest.approx(tight.area_per_block)
+    spread = patterns.with_clearance(tight, cube)
+    assert spread.p == pytest.approx(side * (1 + patterns.CLEARANCE))
+    assert spread.area_per_block > tight.area_per_block
+    assert _lattice_penalty(_params(spread), cube, ("rest-1", "rest-1")) == pytest.approx(spread.area_per_block)
 
 
 def test_the_staggered_bond_is_feasible(cube, shake):
