@@ -59,7 +59,8 @@ def test_a_tuned_lattice_is_spread_off_the_edge_of_feasibility(cube):
     spread = patterns.with_clearance(tight, cube)
     assert spread.p == pytest.approx(side * (1 + patterns.CLEARANCE))
     assert spread.area_per_block > tight.area_per_block
-    assert _lattice_penalty(_params(spread), cube, ("rest-1", "rest-1")) == pytest.approx(spread.area_per_block)
+    assert _lattice_penalty(_params(spread), cube, ("rest-1", "rest-1")) == pytest.approx(
+        spread.area_per_block)
 
 
 def test_the_staggered_bond_is_feasible(cube, shake):
