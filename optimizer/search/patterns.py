@@ -323,7 +323,8 @@ class _Run:
         end = None if seconds is None else clock() + max(0.0, seconds)
         result = differential_evolution(
             _lattice_penalty, self.bounds, args=(self.block, self.families),
-            seed=self.seed + 1000 * self.rounds, maxiter=left, init=self.population, tol=tol.tuning, polish=False, strategy=strategy,
+            seed=self.seed + 1000 * self.rounds, maxiter=left, init=self.population, tol=tol.tuning,
+            polish=False, strategy=strategy,
             callback=None if end is None else (lambda *a, **k: clock() > end))
         self.rounds += 1
         self.generations += int(result.nit)
