@@ -51,7 +51,7 @@ from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, raised_check, stands
-from .search.problem import Clock, Phase, Problem, Strategy
+from .search.problem import TARGET_POINTS, Clock, Phase, Problem, Strategy
 
 #: The default time limit (s): at least this, ``SECONDS_PER_BLOCK`` a required block above it,
 #: and at most ``MAX_DEFAULT_LIMIT`` (issue 24: up to 0.5 s a block, 20 minutes at most).
@@ -110,9 +110,6 @@ REFILL_SETTLES = 2.0
 TUNE_SHARE = 0.25
 TUNE_MAX_SECONDS = 60.0
 
-#: How far (percentage points) a reference layout's porosity may be from the
-#: scene's target before ``shoha optimize`` says it missed (issue 4: within 1).
-TARGET_POINTS = 1.0
 
 
 @dataclass

@@ -319,10 +319,26 @@ def _light(seed_scene, seed, seconds=120):
 @pytest.mark.parametrize("stands, searches", [(True, 1), (False, 3)])
 def test_beam_restarts_only_until_a_full_layout_stands(tiny, stands, searches):
     """The next origin is searched only while no full layout stands: results, not the clock,
-    decide how much work a seed does. The judge is the beam's input here, not under test."""
+    decide how much work a seed does. The judge is the beam's input here, not under test; the
+    target is the first layout's own porosity, which it meets."""
     pr = replace(problem(tiny), required=5)
+    first = BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1)).build
+    pr = replace(pr, target=first.porosity.percent)
     beam = BeamSearch(restarts=3, origins=3, judge=lambda p, b: stands)
     phase = beam.run(pr, None, np.random.default_rng(1))
+    assert len(phase.build) == 5
+    assert phase.stats.restarts == searches
+
+
+@pytest.mark.parametrize("near, searches", [(True, 1), (False, 3)])
+def test_beam_restarts_go_on_while_a_full_layout_misses_the_target(tiny, near, searches):
+    """A full layout that stands ends the restarts only if its porosity is within the window
+    of the target; otherwise the next origins are searched for one nearer it."""
+    pr = replace(problem(tiny), required=5)
+    first = BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1)).build
+    target = first.porosity.percent if near else 0.0
+    beam = BeamSearch(restarts=3, origins=3, judge=lambda p, b: True)
+    phase = beam.run(replace(pr, target=target), None, np.random.default_rng(1))
     assert len(phase.build) == 5
     assert phase.stats.restarts == searches
 
