@@ -15,6 +15,7 @@ import pytest
 
 import optimizer.search.patterns as patterns
 from geometry.blocks import get_block
+from optimizer.search import hangings
 from optimizer.search.patterns import _lattice_penalty, lattice_for, staggered, tune_lattice
 
 
@@ -48,6 +49,15 @@ def test_the_tuner_races_its_runs_and_gives_the_last_round_to_the_densest():
     assert sorted(r.rounds for r in others) == [1, 2]
     assert winner.generations > max(r.generations for r in others)
     assert winner.lattice is not None and all(r.area >= winner.area for r in others)
+
+
+def test_pairs_of_hangings_are_compared_by_volume_so_a_brick_lies_flat():
+    """A brick on end takes half the area of one laid flat: by area a lattice mixing the two
+    wins, but it is twice as tall, and a mound of it no denser."""
+    block = get_block("box:2.0x1.0x1.0")
+    lat = tune_lattice(block, seconds=6.0)
+    assert (lat.family_a, lat.family_b) == ("rest-1", "rest-1")
+    assert hangings.families(block)[:2] == ("rest-1", "rest-2")  # rest-2 stands it on end
 
 
 def test_a_tuned_lattice_is_spread_off_the_edge_of_feasibility(cube):

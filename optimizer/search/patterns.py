@@ -198,7 +198,7 @@ HALVING = 2
 def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
                  families: tuple[str, str] | None = None, seconds: float | None = None,
                  clock: Callable[[], float] = time.monotonic) -> InterlockLattice:
-    """Find the densest crane-feasible two-site lattice for a block.
+    """Find the densest crane-feasible two-site lattice for a block: the least volume per block.
 
     Differential evolution over the seven lattice parameters, lengths bounded
     by the block's size, yaws over a third of a turn for the tetrapod-like
@@ -207,7 +207,10 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     is feasible, so that a short budget tightens a lattice that works rather
     than searching from nothing. Without ``families``, each pair of the
     block's two most stable hangings is tried (the same twice, and the first
-    with the second), from ``TUNE_RESTARTS`` seeds each.
+    with the second), from ``TUNE_RESTARTS`` seeds each. Each run makes its
+    lattice's area per block least; runs of different pairs are compared by
+    the area times the taller hanging's height (:attr:`_Run.volume`), so that
+    a brick is not stood on end to save area.
 
     Without ``seconds`` every run goes to ``maxiter`` generations and the
     densest lattice is kept. With ``seconds`` the runs are raced
@@ -245,7 +248,7 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
             run.go(maxiter, None, clock)
     else:
         _race(runs, maxiter, seconds, clock)
-    best = min(runs, key=lambda r: r.area)
+    best = min(runs, key=lambda r: r.volume)
     if best.lattice is None:
         raise RuntimeError(f"{block.name}: no crane-feasible lattice found")
     return with_clearance(best.lattice, block)
@@ -272,7 +275,8 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
     """Share ``seconds`` among ``runs`` by successive halving (:data:`HALVING`).
 
     Each round has an equal share of the time left, split among the runs in
-    it; then the densest ``1 / HALVING`` of them (at least one) go on from
+    it; then the densest ``1 / HALVING`` of them (least volume per block, at
+    least one) go on from
     where they stopped. The last round is the winner's alone.
     """
     start = clock()
@@ -282,7 +286,7 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
         share = (start + seconds - clock()) / (rounds - k)
         for run in alive:
             run.go(maxiter, share / len(alive), clock)
-        alive = sorted(alive, key=lambda r: r.area)[: max(1, math.ceil(len(alive) / HALVING))]
+        alive = sorted(alive, key=lambda r: r.volume)[: max(1, math.ceil(len(alive) / HALVING))]
 
 
 class _Run:
@@ -313,6 +317,22 @@ class _Run:
     @property
     def area(self) -> float:
         return self.lattice.area_per_block if self.lattice is not None else np.inf
+
+    @property
+    def volume(self) -> float:
+        """The layer's volume per block: the area per block times the taller hanging's height.
+
+        Runs of different pairs are compared by it, not by the area alone: a brick stood on
+        end takes half the area of one laid flat and twice the height, and a lattice that
+        mixes them is no denser a mound.
+        """
+        return self.area * self.height
+
+    @property
+    def height(self) -> float:
+        # A hanging's height does not depend on its yaw.
+        shapes = [Shape.of(self.block, hanging_of(self.block, f, 0.0)) for f in self.families]
+        return max(float(s.highs.max() - s.lows.min()) for s in shapes)
 
     def go(self, maxiter: int, seconds: float | None, clock: Callable[[], float],
            strategy: str = "best1bin") -> None:
