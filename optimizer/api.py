@@ -111,7 +111,6 @@ TUNE_SHARE = 0.25
 TUNE_MAX_SECONDS = 60.0
 
 
-
 @dataclass
 class OptimizeResult:
     """What ``optimize`` found, and how it checks.

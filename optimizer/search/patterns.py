@@ -212,8 +212,8 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     the area times the taller hanging's height (:attr:`_Run.volume`), so that
     a brick is not stood on end to save area.
 
-    Without ``seconds`` every run goes to ``maxiter`` generations and the
-    densest lattice is kept. With ``seconds`` the runs are raced
+    Without ``seconds`` every run goes on for ``maxiter`` generations (or
+    until it converges) and the densest lattice is kept. With ``seconds`` the runs are raced
     (:func:`_race`): all have a short first round, then the densest half goes
     on where it stopped, until one run has the last round to itself.
 
@@ -231,7 +231,9 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     ----------
     seconds : float, optional
         Stop after this many seconds of ``clock`` (the best lattice found so
-        far is returned); ``maxiter`` generations at most either way.
+        far is returned); ``maxiter`` generations at most either way. Each run
+        in each round of the race does at least one generation, so a budget
+        shorter than that is overrun by it.
 
     Raises
     ------
@@ -263,12 +265,23 @@ CLEARANCE = 0.003
 
 
 def with_clearance(lattice: InterlockLattice, block: Block) -> InterlockLattice:
-    """``lattice`` spread by :data:`CLEARANCE`, if it stays crane-feasible; else as it is."""
+    """``lattice`` spread by :data:`CLEARANCE`, if it stays crane-feasible and no looser than the
+    staggered bond the tuner starts from (which leaves gaps of its own); else as it is."""
     spread = lattice.scaled(1.0 + CLEARANCE)
-    params = np.array([spread.p, spread.w, spread.q, spread.u, spread.v, spread.yaw_a, spread.yaw_b])
-    feasible = _lattice_penalty(params, block, (spread.family_a, spread.family_b)) <= (
-        spread.area_per_block * (1 + tol.relative))
-    return spread if feasible else lattice
+    if spread.area_per_block > staggered(block, lattice.family_a).area_per_block:
+        return lattice
+    return spread if feasible(spread, block) else lattice
+
+
+def feasible(lattice: InterlockLattice, block: Block) -> bool:
+    """Whether a crane lays ``lattice`` with every block reaching the ground (its penalty is its area)."""
+    return _lattice_penalty(lattice_params(lattice), block, (lattice.family_a, lattice.family_b)) <= (
+        lattice.area_per_block * (1 + tol.relative))
+
+
+def lattice_params(lattice: InterlockLattice) -> np.ndarray:
+    """The seven parameters :func:`_lattice_penalty` takes, in its order."""
+    return np.array([lattice.p, lattice.w, lattice.q, lattice.u, lattice.v, lattice.yaw_a, lattice.yaw_b])
 
 
 def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], float]) -> None:
@@ -276,12 +289,14 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
 
     Each round has an equal share of the time left, split among the runs in
     it; then the densest ``1 / HALVING`` of them (least volume per block, at
-    least one) go on from
-    where they stopped. The last round is the winner's alone.
+    least one) go on from where they stopped. The last round is the winner's
+    alone.
     """
     start = clock()
     alive = list(runs)
-    rounds = 1 + math.ceil(math.log(len(runs), HALVING)) if len(runs) > 1 else 1
+    rounds, n = 1, len(runs)
+    while n > 1:
+        n, rounds = math.ceil(n / HALVING), rounds + 1
     for k in range(rounds):
         share = (start + seconds - clock()) / (rounds - k)
         for run in alive:
@@ -313,6 +328,9 @@ class _Run:
         self.generations = 0
         self.rounds = 0
         self.lattice: InterlockLattice | None = None
+        # The taller hanging's height (it does not depend on the yaw).
+        shapes = [Shape.of(block, hanging_of(block, f, 0.0)) for f in families]
+        self.height = max(float(s.highs.max() - s.lows.min()) for s in shapes)
 
     @property
     def area(self) -> float:
@@ -328,11 +346,6 @@ class _Run:
         """
         return self.area * self.height
 
-    @property
-    def height(self) -> float:
-        # A hanging's height does not depend on its yaw.
-        shapes = [Shape.of(self.block, hanging_of(self.block, f, 0.0)) for f in self.families]
-        return max(float(s.highs.max() - s.lows.min()) for s in shapes)
 
     def go(self, maxiter: int, seconds: float | None, clock: Callable[[], float],
            strategy: str = "best1bin") -> None:
@@ -352,9 +365,9 @@ class _Run:
         # The fittest member may stop a hair short of the ground (its penalty still under a
         # feasible one's area): the densest member whose penalty is its area alone is kept.
         area = self.population[:, 0] * self.population[:, 1] / 2.0
-        feasible = np.flatnonzero(result.population_energies <= area * (1 + tol.relative))
-        if len(feasible):
-            i = feasible[np.argmin(area[feasible])]
+        ok = np.flatnonzero(result.population_energies <= area * (1 + tol.relative))
+        if len(ok):
+            i = ok[np.argmin(area[ok])]
             p, w, q, u, v, ya, yb = (float(x) for x in self.population[i])
             lattice = InterlockLattice(p, w, q, u, v, ya, yb, *self.families)
             if self.lattice is None or lattice.area_per_block < self.lattice.area_per_block:
