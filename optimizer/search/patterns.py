@@ -257,10 +257,10 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
 
 
 #: Share by which a tuned lattice is spread before it is used. The tuner drives a lattice to the
-#: edge of feasibility (cubes exactly face to face); on a mound, where the beam lowers blocks
+#: edge of feasibility (cubes a micrometre apart); on a mound, where the beam lowers blocks
 #: among neighbours that settled a hair off their sites, such a lattice jams. Measured on
 #: ``benchmarks/scenes/cube.toml`` seed 1: the tuned 2.560 m^2 lattice placed 43 of 44 blocks
-#: in three attempts (60 s); spread by 0.3 % (2.575 m^2), 44 of 44 in its first beam (1.4 s).
+#: in three attempts (56 s); spread by 0.3 % (2.575 m^2), 44 of 44 in its first beam (1.4 s).
 CLEARANCE = 0.003
 
 
