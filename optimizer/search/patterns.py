@@ -213,9 +213,10 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     a brick is not stood on end to save area.
 
     Without ``seconds`` every run goes on for ``maxiter`` generations (or
-    until it converges) and the densest lattice is kept. With ``seconds`` the runs are raced
-    (:func:`_race`): all have a short first round, then the densest half goes
-    on where it stopped, until one run has the last round to itself.
+    until it converges) and the densest lattice is kept. With ``seconds`` the
+    runs are raced (:func:`_race`): all have a short first round, then the
+    densest half goes on where it stopped, until one run has the last round to
+    itself.
 
     Measured on the Shake Block's shape as a user's mesh, turned and moved
     (``benchmarks/scenes/mini-mesh.toml``), seeds 0-2 on one core: the old
@@ -323,7 +324,7 @@ class _Run:
         loose = staggered(block, families[0])
         lo, hi = np.array(self.bounds).T
         rng = np.random.default_rng(seed)
-        seeds = [np.clip([loose.p, loose.w, loose.q, loose.u, loose.v, 0.0, 0.0], lo, hi)]
+        seeds = [np.clip(lattice_params(loose), lo, hi)]
         self.population = np.vstack(seeds + [lo + rng.random(7) * (hi - lo) for _ in range(popsize * 7 - 1)])
         self.generations = 0
         self.rounds = 0
@@ -345,7 +346,6 @@ class _Run:
         mixes them is no denser a mound.
         """
         return self.area * self.height
-
 
     def go(self, maxiter: int, seconds: float | None, clock: Callable[[], float],
            strategy: str = "best1bin") -> None:
