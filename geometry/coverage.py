@@ -49,6 +49,11 @@ CELLS_PER_H = 16
 #: Bare means further than this fraction of the block height H from every block.
 BARE_FRACTION = 0.5
 
+#: What a covered mound aims at (issue 24): at most this share of the slopes and crest bare,
+#: and no point of them further than this many block heights from a block.
+AIM_BARE_PERCENT = 5.0
+AIM_MAX_BARE_H = 1.0
+
 Placed = Sequence[tuple[int, Block, Pose]]
 
 
@@ -233,6 +238,15 @@ class CoverageReport:
                 "max_bare_m": None if empty else self.max_bare_m,
                 "worst_point": None if empty else list(self.worst_point),
                 "bare_distance_m": self.bare_distance_m, "spacing_m": self.spacing_m}
+
+    def aims_met(self) -> int:
+        """How many of the two aims the layout meets: ``AIM_BARE_PERCENT``, ``AIM_MAX_BARE_H``."""
+        h = self.bare_distance_m / BARE_FRACTION
+        return int(self.bare_share_percent <= AIM_BARE_PERCENT) + int(self.max_bare_m <= AIM_MAX_BARE_H * h)
+
+    def better_than(self, other: CoverageReport) -> bool:
+        """Covers better: meets more of the aims, or as many with less of the surface bare."""
+        return (self.aims_met(), -self.bare_share_percent) > (other.aims_met(), -other.bare_share_percent)
 
     def by_face(self) -> dict[str, float]:
         """Bare share (percent) of each face."""

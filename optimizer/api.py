@@ -23,7 +23,10 @@ The pipeline, each step a pluggable strategy instance:
    the layout is settled again;
 5. if the layout is still short of its count and the time it took is left
    before the deadline, steps 1-4 run again on the same random stream (up to
-   ``ATTEMPTS`` in all), and the best layout is kept.
+   ``ATTEMPTS`` in all), and the best layout is kept;
+6. if the best layout reaches its count and porosity but leaves the mound's
+   surface bare, and its time is left, one more attempt lays rows along the
+   toes first (:func:`covered_attempt`), and is kept if it covers better.
 
 Validity is never loosened: if the required count cannot be reached, the best
 valid layout found is returned with the count it reached.
@@ -39,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from geometry.checks import CheckReport, check_layout
+from geometry.coverage import CoverageReport, coverage
 from geometry.errors import InputError
 from geometry.layout import Layout, Placement
 from geometry.scene import Scene
@@ -52,6 +56,7 @@ from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, raised_check, stands
 from .search.problem import TARGET_POINTS, Clock, Phase, Problem, Strategy
+from .search.toe import ToeRows
 
 #: The default time limit (s): at least this, ``SECONDS_PER_BLOCK`` a required block above it,
 #: and at most ``MAX_DEFAULT_LIMIT`` (issue 24: up to 0.5 s a block, 20 minutes at most).
@@ -246,6 +251,7 @@ def optimize(
     clock: Clock = time.monotonic,
     keep: Sequence[Placement] = (),
     started: float | None = None,
+    cover: bool = True,
 ) -> OptimizeResult:
     """Find a reference layout for ``scene``.
 
@@ -285,6 +291,12 @@ def optimize(
         call: ``shoha optimize`` passes the time before it read the scene and
         cut a user's mesh into pieces, so that the limit covers them too and
         ``seconds`` is what the user waited.
+    cover : bool
+        When the best attempt reaches its count and porosity but leaves the
+        mound's surface bare (``geometry.coverage``'s aims), and its time is
+        left, try once more with rows along the toes laid first
+        (:func:`covered_attempt`); keep that layout if it reaches the count and
+        porosity too and covers better. Not with ``keep``.
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
@@ -315,25 +327,34 @@ def optimize(
     for attempt in range(1, ATTEMPTS + 1):
         t0 = clock()
         tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
+        tried[-1].seconds = clock() - t0
         # Another attempt only while every one so far is short of its count or does not stand,
         # and the last one's time is left before the search's deadline.
-        if tried[-1].reached(problem) or clock() + (clock() - t0) > problem.deadline:
+        if tried[-1].reached(problem) or clock() + tried[-1].seconds > problem.deadline:
             break
     chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
+    if cover and not keep:
+        chosen = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
     best = tried[chosen]
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     phases = [p for t in tried for p in t.phases]
     if len(tried) > 1:
         phases.append({"strategy": "attempts", "attempts": len(tried), "chosen": chosen + 1,
                        "blocks": [len(t.build) for t in tried],
-                       "porosity_percent": [t.build.porosity.percent for t in tried]})
+                       "porosity_percent": [t.build.porosity.percent for t in tried],
+                       **({"bare_share_percent": [t.coverage.bare_share_percent if t.coverage else None
+                                                  for t in tried]}
+                          if any(t.coverage for t in tried) else {})})
     layout = build.layout({"generator": {"tool": "shoha optimize", "seed": seed,
                                          **({"kept": len(keep)} if keep else {})}})
     # The coverage is measured if the time left allows it (a scene far too long for its limit
     # may not); without it the result says so.
     left = start + time_limit - clock()
-    report_ = check_layout(scene, layout.placed(), with_coverage=left >= check_reserve(scene)
-                           + coverage_reserve(scene))
+    known = best.coverage  # measured already to choose the attempt (covered_attempt)
+    measure = known is None and left >= check_reserve(scene) + coverage_reserve(scene)
+    report_ = check_layout(scene, layout.placed(), with_coverage=measure)
+    if known is not None:
+        report_.coverage = known
     return OptimizeResult(
         layout=layout,
         porosity_percent=report_.porosity_percent,
@@ -372,9 +393,16 @@ class _Attempt:
     gap: dict[str, Any]
     settle: dict[str, Any]
     stable: bool | None
+    origin: tuple[float, float] | None = None
+    seconds: float = 0.0
+    coverage: CoverageReport | None = None
 
     def reached(self, problem: Problem) -> bool:
         return len(self.build) >= problem.required and self.stable is not False
+
+    def on_target(self, problem: Problem) -> bool:
+        """Reached, and its porosity within ``TARGET_POINTS`` of the target."""
+        return self.reached(problem) and abs(self.build.porosity.percent - problem.target) <= TARGET_POINTS
 
     def key(self, problem: Problem) -> tuple[bool, int, float]:
         """Better is larger: standing, then more blocks (up to the count), then porosity nearer the target."""
@@ -401,9 +429,9 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                    "objective_m3": s.objective_m3, "bound_m3": s.bound_m3, "gap_percent": s.gap_percent,
                    "optimal": s.optimal, "candidates": s.candidates, "seconds": s.seconds}
     build = phase.build if phase is not None else Build(scene)
-    if not settle_layout:
-        return _Attempt(build, phases, gap, {}, None)
     origin = phase.origin if phase else None
+    if not settle_layout:
+        return _Attempt(build, phases, gap, {}, None, origin)
     build, confirmation = confirm(problem, build, rng, origin, end)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
     # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
@@ -424,7 +452,47 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                        "blocks": len(again), "porosity_percent": again.porosity.percent,
                        "added": len(again) - len(build)})
         build, confirmation = again, check
-    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable)
+    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin)
+
+
+def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
+                    rng: np.random.Generator, settle_layout: bool, end: float) -> int:
+    """One more attempt, with rows along the toes first, where the chosen one leaves the mound bare.
+
+    Only when the chosen attempt reaches its count and porosity and misses
+    a coverage aim (``CoverageReport.aims_met``), and its time is left
+    before the deadline. The rows (:class:`ToeRows`) come first; then the
+    strategies, the beam searching only from the chosen attempt's pattern
+    origin, where the pattern reached the count, and without the pocket
+    fill: around the rows the pattern alone has to reach the count, or the
+    attempt is not kept, and the fill would only spend the time. Appends the
+    attempt to ``tried`` and returns the index of the one to keep: the new
+    one if it reaches its count and porosity too and covers better.
+    """
+    clock = problem.clock
+    best = tried[chosen]
+    if not best.on_target(problem) or best.origin is None:
+        return chosen
+    scene = problem.scene
+    if clock() + coverage_reserve(scene) > problem.deadline:
+        return chosen
+    best.coverage = coverage(scene, best.build.placed())
+    if best.coverage.aims_met() == 2 or clock() + best.seconds > problem.deadline:
+        return chosen
+    again = [ToeRows(accept=raised_check)]
+    for s in strategies:
+        if isinstance(s, BeamSearch):
+            again.append(s.at(best.origin))
+        elif not isinstance(s, PocketFill):
+            again.append(s)
+    t0 = clock()
+    tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1))
+    new = tried[-1]
+    new.seconds = clock() - t0
+    if not new.on_target(problem) or clock() + coverage_reserve(scene) > problem.deadline:
+        return chosen
+    new.coverage = coverage(scene, new.build.placed())
+    return len(tried) - 1 if new.coverage.better_than(best.coverage) else chosen
 
 
 def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:

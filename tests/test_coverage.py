@@ -7,6 +7,10 @@ import pytest
 import trimesh
 
 from geometry.coverage import (
+    AIM_BARE_PERCENT,
+    BARE_FRACTION,
+    CoverageReport,
+    SurfaceSamples,
     block_samples,
     coverage,
     distance_to_block,
@@ -111,3 +115,24 @@ def test_mirror_images_have_the_same_coverage(boxes):
     b = [(0, cube, Pose([-1.0, 2.0, 0.5], [1, 0, 0, 0]))]
     ca, cb = coverage(boxes, a), coverage(boxes, b)
     assert ca.bare_share_percent == pytest.approx(cb.bare_share_percent, abs=1e-9)  # mirror images
+
+
+def _report(bare: float, max_bare: float, h: float = 2.0) -> CoverageReport:
+    return CoverageReport(bare, max_bare, (0.0, 0.0, 0.0), BARE_FRACTION * h, 0.1, np.zeros(0, bool),
+                          SurfaceSamples(np.zeros((0, 3)), np.zeros(0), np.zeros(0, int), 0.1))
+
+
+def test_the_aims_are_five_percent_bare_and_nothing_further_than_h():
+    """Issue 24's aims, at their edges, for a block 2 m high."""
+    assert _report(AIM_BARE_PERCENT, 2.0).aims_met() == 2
+    assert _report(AIM_BARE_PERCENT + 0.01, 2.0).aims_met() == 1
+    assert _report(1.0, 2.01).aims_met() == 1
+    assert _report(6.0, 2.5).aims_met() == 0
+
+
+def test_covering_better_is_more_aims_met_then_less_bare():
+    """A layout that meets the distance aim covers better than a less bare one that meets none."""
+    assert _report(6.0, 1.5).better_than(_report(5.5, 2.5))
+    assert not _report(5.5, 2.5).better_than(_report(6.0, 1.5))
+    assert _report(7.0, 2.5).better_than(_report(8.0, 2.1))
+    assert not _report(7.0, 1.5).better_than(_report(7.0, 1.5))

@@ -28,6 +28,7 @@ from optimizer.search.fill import PocketFill
 from optimizer.search.patterns import lattice_for
 from optimizer.search.physics import raised_check
 from optimizer.search.problem import Phase, Problem
+from optimizer.search.toe import ToeRows
 from tests.clock import WorkClock
 from tests.conftest import ROOT
 
@@ -50,6 +51,7 @@ STRATEGIES = {
     "fill": lambda: PocketFill(accept=raised_check, draws=60, checks=10),
     "anneal": lambda: Annealing(iterations=120),
     "cpsat": lambda: CpSat(origins=1, jitter=1, time_limit=5.0),
+    "toe": lambda: ToeRows(accept=raised_check),
 }
 
 

@@ -27,6 +27,7 @@ for origins on line scans across one lattice cell (:func:`rank_origins`).
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -180,6 +181,12 @@ class BeamSearch(Strategy):
         self.restarts = restarts
         self.share = share
         self.judge = judge
+
+    def at(self, origin: tuple[float, float]) -> BeamSearch:
+        """The same search, from one pattern origin only."""
+        other = copy.copy(self)
+        other.origin = origin
+        return other
 
     # --- candidates ------------------------------------------------------------
 

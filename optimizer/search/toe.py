@@ -1,0 +1,183 @@
+"""Toe rows: a row of blocks laid first along each toe, where later blocks cannot reach.
+
+A mound whose count fills it to the crest leaves its toes bare: the pattern's
+outermost blocks stand a cell's width in from the design toe line, and a block
+lowered there later lands on the slope blocks, out of the zone
+(docs/coverage-study.md). Rows along the toes have to be laid first. ``optimize``
+lays them in a second attempt when its first layout reaches the count and the
+porosity but leaves the mound uncovered, and keeps whichever covers better
+(``optimizer.api``).
+
+For each toe (the seaward one only behind a wall):
+
+1. at mid-length, each hanging of the block at ``yaws`` yaws over its
+   symmetry's period is lowered as far out towards the toe as it rests
+   inside the zone (bisection, to ``RESOLUTION`` of H);
+2. of those whose surface comes within ``REACH`` of H / 2 of the design toe
+   line, the one with the most volume inside the design prism is kept; if
+   none does, the nearest;
+3. the row is laid from one end of the zone to the other, each block as near
+   the one before as it lands on the ground, as far out as fits there.
+
+Nothing in it is tuned to a scene: ``REACH`` leaves room for the toe between
+two blocks of a row, and the steps are shares of the block height.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from geometry.coverage import BARE_FRACTION, distance_to_block
+
+from .build import GROUND, Build, Candidate
+from .drop import Shape
+from .hangings import symmetry
+from .problem import Phase, Problem, Stats, Strategy
+from .shapes import ShapeCache
+
+#: A hanging is said to reach the toe when its surface comes within this share of the bare
+#: distance of the design toe line (the toe between two blocks of a row lies a little further).
+REACH = 0.9
+#: How finely the outermost place is found, as a share of the block height.
+RESOLUTION = 0.01
+#: Steps along the row from one block to the next, as a share of the block height.
+ROW_STEP = 0.03
+
+
+@dataclass(frozen=True)
+class ToeStats(Stats):
+    """Figures of the toe rows.
+
+    Attributes
+    ----------
+    placed : int
+        Blocks laid in the rows.
+    hangings : tuple of str
+        The hanging and yaw (degrees) of each side's row.
+    reach_m : tuple of float
+        How near each row's block at mid-length comes to the design toe line.
+    """
+
+    placed: int = 0
+    hangings: tuple[str, ...] = ()
+    reach_m: tuple[float, ...] = ()
+
+
+class ToeRows(Strategy):
+    """Lay a row of blocks along each toe (the seaward one only behind a wall).
+
+    Parameters
+    ----------
+    accept : callable, optional
+        ``accept(problem, build, candidate) -> Candidate | None``, as the beam
+        search's: where a row block comes to rest (on a rough underlayer).
+    yaws : int
+        Yaws tried per hanging, over one period of its symmetry.
+    """
+
+    name = "toe"
+
+    def __init__(self, accept: Callable[[Problem, Build, Candidate], Candidate | None] | None = None,
+                 yaws: int = 12):
+        self.accept = accept
+        self.yaws = yaws
+
+    def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
+        build = previous.build.copy() if previous is not None else Build(problem.scene)
+        origin = previous.origin if previous is not None else None
+        shapes = ShapeCache(problem.scene.block)
+        design = problem.scene.design
+        sides = (1.0,) if design.wall_x is not None else (1.0, -1.0)
+        placed, names, reach = 0, [], []
+        for side in sides:
+            if problem.time_left() <= 0:
+                break
+            chosen = self._hanging(problem, build, shapes, side)
+            if chosen is None:
+                continue
+            fam, yaw, dist = chosen
+            names.append(f"{fam} {np.degrees(yaw):.0f}")
+            reach.append(dist)
+            placed += self._row(problem, build, shapes, side, fam, yaw)
+        return Phase(build, ToeStats(placed, tuple(names), tuple(reach)), origin)
+
+    # --- which hanging ---------------------------------------------------------------
+
+    def _hanging(self, problem: Problem, build: Build, shapes: ShapeCache,
+                 side: float) -> tuple[str, float, float] | None:
+        """The (hanging, yaw, distance to the toe) a row should be laid in, or None if none fits."""
+        scene = problem.scene
+        block, design = scene.block, scene.design
+        y = 0.5 * (design.y_start + design.y_end)
+        toe = np.array([[side * design.bottom_half_width, y, design.z_bottom]])
+        limit = REACH * BARE_FRACTION * block.height
+        found = []
+        for fam in problem.families:
+            if fam == "free":
+                continue
+            period = 2 * np.pi / symmetry(block, fam)
+            for yaw in np.arange(self.yaws) * period / self.yaws:
+                if problem.time_left() <= 0:
+                    break
+                c = _outermost(problem, build, shapes.hung(fam, float(yaw)), side, y)
+                if c is None:
+                    continue
+                dist = float(distance_to_block(toe, block, c.pose)[0])
+                found.append((max(dist, limit), -c.inside, dist, fam, float(yaw)))
+        if not found:
+            return None
+        _, _, dist, fam, yaw = min(found)
+        return fam, yaw, dist
+
+    # --- the row ---------------------------------------------------------------------------
+
+    def _row(self, problem: Problem, build: Build, shapes: ShapeCache, side: float, fam: str,
+             yaw: float) -> int:
+        """Lay the row from the zone's start to its end; returns how many blocks it placed."""
+        zone = problem.scene.tolerance
+        h = problem.scene.block.height
+        shape = shapes.hung(fam, yaw)
+        width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
+        y, placed = zone.y_start, 0
+        while y <= zone.y_end and len(build) < problem.required and problem.time_left() > 0:
+            c = _outermost(problem, build, shape, side, y)
+            if c is not None and c.support == (GROUND,) and self.accept is not None:
+                c = self.accept(problem, build, c)
+            if c is None or GROUND not in c.support:
+                y += ROW_STEP * h
+                continue
+            build.place(c)
+            placed += 1
+            problem.tell(self.name, build, f"{len(build)} placed")
+            # The next block cannot stand nearer than this one's half width along the row.
+            y = float(c.pose.position[1]) + 0.5 * width + ROW_STEP * h
+        return placed
+
+
+def _outermost(problem: Problem, build: Build, shape: Shape, side: float, y: float
+               ) -> Candidate | None:
+    """The block lowered at ``y`` as far out towards the ``side`` toe as it rests inside the zone."""
+    zone = problem.scene.tolerance
+    h = problem.scene.block.height
+    lo, hi = 0.0, float(zone.bottom_half_width)
+    inner = build.lower(shape, side * lo, y)
+    # From the axis outwards, the first place it fits (a mound's core may be taken already).
+    step = 0.25 * h
+    while inner is None and lo < hi:
+        lo += step
+        inner = build.lower(shape, side * lo, y)
+    if inner is None:
+        return None
+    # Then bisect between the last place it fits and the zone's edge.
+    best = inner
+    while hi - lo > RESOLUTION * h:
+        mid = 0.5 * (lo + hi)
+        c = build.lower(shape, side * mid, y)
+        if c is None:
+            hi = mid
+        else:
+            lo, best = mid, c
+    return best
