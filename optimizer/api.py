@@ -455,13 +455,23 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin)
 
 
+def _one_origin_seconds(attempt: _Attempt) -> float:
+    """What ``attempt`` would have taken with its beam searching one pattern origin only: its
+    beam's time is shared evenly among the origins it searched (ranking included, so an
+    overestimate). A covered attempt searches one."""
+    extra = sum(p["seconds"] * (1 - 1 / max(1, p.get("restarts", 1)))
+                for p in attempt.phases if p["strategy"] == "beam")
+    return attempt.seconds - extra
+
+
 def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
                     rng: np.random.Generator, settle_layout: bool, end: float) -> int:
     """One more attempt, with rows along the toes first, where the chosen one leaves the mound bare.
 
     Only when the chosen attempt reaches its count and porosity and misses
-    a coverage aim (``CoverageReport.aims_met``), and its time is left
-    before the deadline. The rows (:class:`ToeRows`) come first; then the
+    a coverage aim (``CoverageReport.aims_met``), and its time, its beam
+    searching one origin (:func:`_one_origin_seconds`), is left before the
+    deadline. The rows (:class:`ToeRows`) come first; then the
     strategies, the beam searching only from the chosen attempt's pattern
     origin, where the pattern reached the count, and without the pocket
     fill: around the rows the pattern alone has to reach the count, or the
@@ -477,7 +487,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     if clock() + coverage_reserve(scene) > problem.deadline:
         return chosen
     best.coverage = coverage(scene, best.build.placed())
-    if best.coverage.aims_met() == 2 or clock() + best.seconds > problem.deadline:
+    if best.coverage.aims_met() == 2 or clock() + _one_origin_seconds(best) > problem.deadline:
         return chosen
     again = [ToeRows(accept=raised_check)]
     for s in strategies:
