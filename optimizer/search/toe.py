@@ -4,9 +4,9 @@ A mound whose count fills it to the crest leaves its toes bare: the pattern's
 outermost blocks stand a cell's width in from the design toe line, and a block
 lowered there later lands on the slope blocks, out of the zone
 (docs/coverage-study.md). Rows along the toes have to be laid first. ``optimize``
-lays them in a second attempt when its first layout reaches the count and the
-porosity but leaves the mound uncovered, and keeps whichever covers better
-(``optimizer.api``).
+lays them in one more attempt when the layout it would keep reaches the count
+and the porosity but leaves the mound uncovered, and keeps that attempt only if
+it reaches them too and covers better (``optimizer.api.covered_attempt``).
 
 For each toe (the seaward one only behind a wall):
 
