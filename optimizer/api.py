@@ -325,9 +325,7 @@ def optimize(
     end = start + time_limit - min(RESERVE_SHARE * time_limit, check_reserve(scene) + coverage_reserve(scene))
     tried: list[_Attempt] = []
     for attempt in range(1, ATTEMPTS + 1):
-        t0 = clock()
         tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
-        tried[-1].seconds = clock() - t0
         # Another attempt only while every one so far is short of its count or does not stand,
         # and the last one's time is left before the search's deadline.
         if tried[-1].reached(problem) or clock() + tried[-1].seconds > problem.deadline:
@@ -386,7 +384,9 @@ ATTEMPTS = 3
 
 @dataclass
 class _Attempt:
-    """One run of the strategies and the confirming settle."""
+    """One run of the strategies and the confirming settle: its layout, the pattern origin its
+    beam searched from, the seconds it took, and its coverage once measured (only where the
+    coverage attempt has to judge it)."""
 
     build: Build
     phases: list[dict[str, Any]]
@@ -414,6 +414,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
              rng: np.random.Generator, settle_layout: bool, end: float, attempt: int) -> _Attempt:
     """The strategies in order from an empty (or kept) build, then the settle that confirms it."""
     clock = problem.clock
+    start = clock()
     phase = Phase(kept_build(scene, keep)) if keep else None
     phases = []
     gap: dict[str, Any] = {}
@@ -431,7 +432,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     build = phase.build if phase is not None else Build(scene)
     origin = phase.origin if phase else None
     if not settle_layout:
-        return _Attempt(build, phases, gap, {}, None, origin)
+        return _Attempt(build, phases, gap, {}, None, origin, clock() - start)
     build, confirmation = confirm(problem, build, rng, origin, end)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
     # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
@@ -452,7 +453,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                        "blocks": len(again), "porosity_percent": again.porosity.percent,
                        "added": len(again) - len(build)})
         build, confirmation = again, check
-    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin)
+    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin, clock() - start)
 
 
 def _one_origin_seconds(attempt: _Attempt) -> float:
@@ -495,10 +496,8 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             again.append(s.at(best.origin))
         elif not isinstance(s, PocketFill):
             again.append(s)
-    t0 = clock()
     tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1))
     new = tried[-1]
-    new.seconds = clock() - t0
     if not new.on_target(problem) or clock() + coverage_reserve(scene) > problem.deadline:
         return chosen
     new.coverage = coverage(scene, new.build.placed())

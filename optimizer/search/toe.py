@@ -71,17 +71,17 @@ class ToeRows(Strategy):
 
     Parameters
     ----------
-    accept : callable, optional
-        ``accept(problem, build, candidate) -> Candidate | None``, as the beam
-        search's: where a row block comes to rest (on a rough underlayer).
+    accept : callable
+        ``accept(problem, build, candidate) -> Candidate | None``, as the pocket
+        fill's: where a row block comes to rest (on a rough underlayer;
+        :func:`optimizer.search.physics.raised_check`).
     yaws : int
         Yaws tried per hanging, over one period of its symmetry.
     """
 
     name = "toe"
 
-    def __init__(self, accept: Callable[[Problem, Build, Candidate], Candidate | None] | None = None,
-                 yaws: int = 12):
+    def __init__(self, accept: Callable[[Problem, Build, Candidate], Candidate | None], yaws: int = 12):
         self.accept = accept
         self.yaws = yaws
 
@@ -144,7 +144,7 @@ class ToeRows(Strategy):
         y, placed = zone.y_start, 0
         while y <= zone.y_end and len(build) < problem.required and problem.time_left() > 0:
             c = _outermost(problem, build, shape, side, y)
-            if c is not None and c.support == (GROUND,) and self.accept is not None:
+            if c is not None and c.support == (GROUND,):
                 c = self.accept(problem, build, c)
             if c is None or GROUND not in c.support:
                 y += ROW_STEP * h
