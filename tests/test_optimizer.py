@@ -15,7 +15,7 @@ from geometry.constants import tol
 from geometry.pose import Pose
 from geometry.samples import random_quaternion
 from geometry.scene import load_scene
-from optimizer.api import optimize
+from optimizer.api import _attempt, optimize
 from optimizer.search.anneal import Annealing, energy_of
 from optimizer.search.beam import BeamSearch
 from optimizer.search.cpsat import CpSat
@@ -331,6 +331,23 @@ def test_a_covered_attempt_that_falls_short_is_not_kept(tiny):
     assert attempts["chosen"] != covered and attempts["bare_share_percent"][attempts["chosen"] - 1] > 5.0
     assert not any(p["strategy"] == "toe" for p in plain.phases)
     assert r.layout.dumps() == plain.layout.dumps()
+
+
+def test_an_all_or_nothing_attempt_left_short_is_not_settled(tiny):
+    """The coverage attempt counts only if its search reaches the count: a build left short is
+    returned as the strategies left it, unconfirmed, where an ordinary attempt is settled."""
+    short = replace(problem(tiny), required=tiny.required_blocks + 40)
+    end = short.deadline
+
+    def run(all_or_nothing):
+        return _attempt(short, [BeamSearch(restarts=1, origins=3)], tiny, (), np.random.default_rng(1),
+                        True, end, 1, all_or_nothing=all_or_nothing)
+
+    settled, unsettled = run(False), run(True)
+    assert len(unsettled.build) < short.required
+    assert settled.settle and settled.stable is not None
+    assert unsettled.settle == {} and unsettled.stable is None
+    assert not unsettled.reached(short)
 
 
 @pytest.mark.slow
