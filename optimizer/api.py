@@ -417,8 +417,8 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
 
     With ``all_or_nothing`` (the coverage attempt, kept only if it reaches the count), a build
     the strategies leave short of the count is returned as they left it, not confirmed. The
-    settle's repair can add blocks, but not a search's shortfall: on ``full`` it took 31 s
-    more to bring 705 of 1005 to 736.
+    settle's repair can add blocks, but not a search's shortfall: on ``full`` it brought the
+    705 of 1005 the search left to 736.
     """
     clock = problem.clock
     start = clock()
