@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from geometry.checks import CheckReport, check_layout
-from geometry.coverage import CoverageReport, coverage
+from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION, CoverageReport, coverage
 from geometry.errors import InputError
 from geometry.layout import Layout, Placement
 from geometry.scene import Scene
@@ -149,6 +149,9 @@ class OptimizeResult:
         where it is); None when the time limit left no room to measure it.
     time_limit_s : float
         The limit the run had (the default one unless given).
+    cover_attempt : str or None
+        Where the layout misses a coverage aim, what came of the attempt with
+        toe rows first (:func:`covered_attempt`), in words for :meth:`summary`.
     kept : dict or None
         With ``keep``: how many blocks were kept, and the ids of those among
         them that collide, stick out of the tolerance zone or fail the settle
@@ -172,6 +175,7 @@ class OptimizeResult:
     coverage: dict[str, Any] | None = None
     kept: dict[str, Any] | None = None
     time_limit_s: float | None = None
+    cover_attempt: str | None = None
 
     @property
     def valid(self) -> bool:
@@ -194,6 +198,7 @@ class OptimizeResult:
             text += f"; bare {c['bare_share_percent']:.1f}%"
             if c["max_bare_m"] is not None:
                 text += f", farthest {c['max_bare_m']:.2f} m from a block"
+            text += self._not_covered()
         off = self.porosity_percent - self.target_porosity_percent
         if self.blocks >= self.required_blocks and abs(off) > TARGET_POINTS:
             text += (f"\nporosity is {abs(off):.2f} points {'above' if off > 0 else 'below'} the target")
@@ -208,6 +213,24 @@ class OptimizeResult:
             text += (f"\nkept {k['blocks']} blocks where they were"
                      + (f"; of those, {'; '.join(faults)}" if faults else ""))
         return text
+
+    def _not_covered(self) -> str:
+        """A line on the coverage aims the layout misses, and why, or nothing if it meets them."""
+        c = self.coverage
+        assert c is not None
+        h = c["bare_distance_m"] / BARE_FRACTION
+        misses = []
+        if c["bare_share_percent"] > AIM_BARE_PERCENT:
+            misses.append(f"{c['bare_share_percent']:.1f}% of the slopes and crest lies over H/2 = "
+                          f"{c['bare_distance_m']:.2f} m from a block (aim: at most {AIM_BARE_PERCENT:g}%)")
+        if c["max_bare_m"] is not None and c["max_bare_m"] > AIM_MAX_BARE_H * h:
+            x, y, z = c["worst_point"]
+            misses.append(f"the point ({x:.1f}, {y:.1f}, {z:.1f}) lies {c['max_bare_m']:.2f} m from one "
+                          f"(aim: within H = {AIM_MAX_BARE_H * h:.2f} m)")
+        if not misses:
+            return ""
+        return "\nthe mound is not covered: " + "; ".join(misses) + (
+            f"; {self.cover_attempt}" if self.cover_attempt else "")
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -331,8 +354,9 @@ def optimize(
         if tried[-1].reached(problem) or clock() + tried[-1].seconds > problem.deadline:
             break
     chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
+    cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
-        chosen = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
+        chosen, cover_note = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
     best = tried[chosen]
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     phases = [p for t in tried for p in t.phases]
@@ -372,6 +396,7 @@ def optimize(
         time_limit_s=time_limit,
         kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
         if keep else None,
+        cover_attempt=cover_note,
     )
 
 
@@ -473,7 +498,7 @@ def _one_origin_seconds(attempt: _Attempt) -> float:
 
 
 def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
-                    rng: np.random.Generator, settle_layout: bool, end: float) -> int:
+                    rng: np.random.Generator, settle_layout: bool, end: float) -> tuple[int, str | None]:
     """One more attempt, with rows along the toes first, where the chosen one leaves the mound bare.
 
     Only when the chosen attempt reaches its count and porosity and misses
@@ -484,19 +509,24 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     origin, where the pattern reached the count, and without the pocket
     fill: around the rows the pattern alone has to reach the count, or the
     attempt is not kept, and the fill would only spend the time. Appends the
-    attempt to ``tried`` and returns the index of the one to keep: the new
-    one if it reaches its count and porosity too and covers better.
+    attempt to ``tried`` and returns the index of the one to keep, the new
+    one if it reaches its count and porosity too and covers better, with
+    what came of it in words (None where there is nothing to say: the
+    layout covers, or its coverage is not known).
     """
     clock = problem.clock
     best = tried[chosen]
     if not best.on_target(problem) or best.origin is None:
-        return chosen
+        return chosen, "toe rows are tried only once a layout reaches its count and porosity"
     scene = problem.scene
     if clock() + coverage_reserve(scene) > problem.deadline:
-        return chosen
+        return chosen, None
     best.coverage = coverage(scene, best.build.placed())
-    if best.coverage.aims_met() == 2 or clock() + _one_origin_seconds(best) > problem.deadline:
-        return chosen
+    if best.coverage.aims_met() == 2:
+        return chosen, None
+    if clock() + _one_origin_seconds(best) > problem.deadline:
+        return chosen, (f"no time was left for an attempt with toe rows first "
+                        f"(about {_one_origin_seconds(best):.0f} s)")
     again = [ToeRows(accept=raised_check)]
     for s in strategies:
         if isinstance(s, BeamSearch):
@@ -506,10 +536,20 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1,
                           all_or_nothing=True))
     new = tried[-1]
-    if not new.on_target(problem) or clock() + coverage_reserve(scene) > problem.deadline:
-        return chosen
+    what = "an attempt with toe rows first"
+    if len(new.build) < problem.required:
+        return chosen, f"{what} placed {len(new.build)} of {problem.required} blocks, so it was not kept"
+    if not new.reached(problem):
+        return chosen, f"{what} did not stand, so it was not kept"
+    if not new.on_target(problem):
+        return chosen, f"{what} came to {new.build.porosity.percent:.2f}% porosity, so it was not kept"
+    if clock() + coverage_reserve(scene) > problem.deadline:
+        return chosen, f"{what} reached the count, but no time was left to measure its coverage"
     new.coverage = coverage(scene, new.build.placed())
-    return len(tried) - 1 if new.coverage.better_than(best.coverage) else chosen
+    if not new.coverage.better_than(best.coverage):
+        return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
+    return len(tried) - 1, (f"the layout is that of {what}; without them "
+                            f"{best.coverage.bare_share_percent:.1f}% was bare")
 
 
 def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:

@@ -331,6 +331,11 @@ def test_a_covered_attempt_that_falls_short_is_not_kept(tiny):
     assert attempts["chosen"] != covered and attempts["bare_share_percent"][attempts["chosen"] - 1] > 5.0
     assert not any(p["strategy"] == "toe" for p in plain.phases)
     assert r.layout.dumps() == plain.layout.dumps()
+    # The summary says the mound is not covered, and what came of the attempt.
+    said = r.summary().splitlines()[-1]
+    assert said.startswith("the mound is not covered: ") and "over H/2" in said
+    assert f"placed {attempts['blocks'][covered - 1]} of {tiny.required_blocks} blocks" in said
+    assert "toe rows" not in plain.summary()
 
 
 def test_an_all_or_nothing_attempt_left_short_is_not_settled(tiny):
@@ -364,6 +369,8 @@ def test_behind_a_wall_the_toe_rows_bring_every_point_within_h_of_a_block():
     bare = attempts["bare_share_percent"]
     assert r.coverage["max_bare_m"] <= scene.block.height
     assert bare[toe["attempt"] - 1] < bare[0]
+    if r.coverage["bare_share_percent"] > 5.0:
+        assert f"without them {bare[0]:.1f}% was bare" in r.summary()
 
 
 @pytest.mark.parametrize("stands, searches", [(True, 1), (False, 3)])
