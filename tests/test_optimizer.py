@@ -518,6 +518,10 @@ def test_cli_optimize_writes_the_contract_keys(tmp_path):
                       "path"}
     assert d["path"] == str(out) and out.exists()
     assert isinstance(d["outside_design_prism_m3"], float) and d["outside_design_prism_m3"] >= 0.0
+    # stdout is the JSON object alone; what the run found is said on stderr, as without --json.
+    said = (f"{d['required_blocks']} required, {d['blocks']} fit: " if d["blocks"] < d["required_blocks"]
+            else f"{d['blocks']} blocks, porosity ")
+    assert said in r.stderr and f"wrote {out}" in r.stderr
     written = json.loads(out.read_text())
     assert written["format"] == "shoha-layout/1"
     # The scene is a file here: the layout names it relative to itself, and it resolves.

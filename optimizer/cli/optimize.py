@@ -96,7 +96,11 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     write_layout(result.layout, path)
     result.path = str(path)
     payload = result.to_dict()
-    emit(payload, as_json, f"{result.summary()}\nwrote {path}")
+    human = f"{result.summary()}\nwrote {path}"
+    if as_json:
+        # stdout holds the one JSON object; what the run found is still said, on stderr.
+        click.echo(human, err=True)
+    emit(payload, as_json, human)
 
 
 
