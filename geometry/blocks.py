@@ -453,6 +453,8 @@ def mesh_block(path: str, name: str | None = None) -> Block:
     """
     name = name or f"mesh:{path}"
     p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{path}: is a folder, not a mesh file")
     if not p.is_file():
         raise InputError(f"{path}: mesh file not found")
     raw = p.read_bytes()
@@ -481,17 +483,39 @@ def _load_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
     suffix = p.suffix.lower().lstrip(".")
     if suffix not in ("stl", "obj", "glb"):
         raise InputError(f"{p}: mesh blocks take .stl, .obj or .glb, not {suffix!r}")
+    if suffix == "stl":
+        _check_stl(p)
     try:
         loaded = trimesh.load(str(p), file_type=suffix, force="mesh", process=False)
+    except ImportError as exc:  # trimesh reaches for an optional text decoder on bytes it cannot read
+        raise InputError(f"{p}: cannot read mesh: not a valid .{suffix} file") from exc
     except Exception as exc:  # trimesh raises many types on malformed files
         raise InputError(f"{p}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=float)
     faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
-    if len(faces) == 0 or len(vertices) < 4:
+    if len(faces) == 0:
         raise InputError(f"{p}: mesh has no triangles")
+    if len(faces) < 4 or len(vertices) < 4:
+        raise InputError(f"{p}: mesh has {len(faces)} triangle(s) and {len(vertices)} vertices; "
+                         "a block is a closed solid, at least a tetrahedron")
     if not np.isfinite(vertices).all():
         raise InputError(f"{p}: mesh has non-finite vertex coordinates")
     return vertices, faces
+
+
+def _check_stl(p: Path) -> None:
+    """An STL file is binary (an 80-byte header, a triangle count, 50 bytes a triangle) or
+    ASCII text beginning with ``solid``; anything else is refused before trimesh guesses at it
+    (it tries to decode unknown bytes as text, and fails with errors about that)."""
+    with p.open("rb") as f:
+        head = f.read(84)
+    size = p.stat().st_size
+    if len(head) == 84 and 84 + 50 * int.from_bytes(head[80:84], "little") <= size:
+        return  # some writers pad a binary file after its triangles
+    if head.lstrip(b"\xef\xbb\xbf \t\r\n").lower().startswith(b"solid"):
+        return
+    raise InputError(f"{p}: not an STL file: neither binary (too short for its triangle count) "
+                     "nor ASCII (it does not begin with 'solid')")
 
 
 # CoACD settings; part of the cache key, so changing one re-decomposes.

@@ -303,7 +303,12 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     if kind not in SCENE_KINDS:
         raise InputError(f"{source}: kind must be one of {', '.join(SCENE_KINDS)}, not {kind!r}")
     block_type = _str(data, "block", source, default="shake-4t")
-    block = get_block(block_type, base_dir)
+    try:
+        block = get_block(block_type, base_dir)
+    except InputError as exc:
+        # A mesh's own errors name the mesh file; the scene file is named too, with its key.
+        said = str(exc).removeprefix(f"block type {block_type!r}: ")
+        raise InputError(f"{source}: block = {block_type!r}: {said}") from exc
 
     crest_width = _num(design, "crest_width_m", source, lo=0.0)
     height = _num(design, "height_m", source, lo=0.0, lo_open=True)

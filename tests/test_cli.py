@@ -171,6 +171,31 @@ def test_non_watertight_mesh_exits_2(tmp_path):
     _assert_bad(shoha("check", str(lay)), "open.stl")
 
 
+def _one_triangle_stl(path):
+    trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False).export(path)
+
+
+@pytest.mark.parametrize("block, make, said", [
+    # Bytes that are neither binary nor ASCII STL: the message says so, not what trimesh tripped on.
+    ("mesh:junk.stl", lambda d: (d / "junk.stl").write_bytes(bytes(range(256)) * 4),
+     "not an STL file"),
+    ("mesh:junk.obj", lambda d: (d / "junk.obj").write_bytes(bytes(range(256)) * 4),
+     "not a valid .obj file"),
+    ("mesh:tri.stl", lambda d: _one_triangle_stl(d / "tri.stl"), "1 triangle(s)"),
+    ("mesh:.", lambda d: None, "is a folder, not a mesh file"),
+    ("tetrapod:0.01", lambda d: None, "between 0.05 and 100 m"),
+])
+def test_a_scene_with_a_bad_block_names_the_scene_file_and_the_problem(tmp_path, block, make, said):
+    make(tmp_path)
+    scene = tmp_path / "own.toml"
+    scene.write_text(f'block = "{block}"\n[design]\ncrest_width_m = 4.0\nheight_m = 3.0\n'
+                     'slope_rise_run = [3.0, 4.0]\nlength_m = 12.0\n')
+    r = shoha("scene", "info", str(scene), "--json")
+    _assert_bad(r, "own.toml")
+    assert f"block = '{block}'" in r.stderr and said in r.stderr
+    assert "ModuleNotFoundError" not in r.stderr and r.stderr.count("block type") == 0
+
+
 def test_bad_save_writes_nothing(tmp_path):
     save = tmp_path / "save.json"
     save.write_text(json.dumps({"blocks": [{"position": {"x": 1, "y": 2, "z": 3},
