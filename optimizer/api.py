@@ -202,6 +202,10 @@ class OptimizeResult:
         verdict = {True: "stable", False: "NOT stable", None: "not settled"}[self.stable]
         text = (f"{head}; {self.collisions} collisions, {self.out_of_tolerance} out of tolerance, "
                 f"{verdict}; {self.seconds:.1f} s")
+        if self.blocks < self.required_blocks and self.settle.get("repaired"):
+            # Why the count can end below what the search showed on the way.
+            text += (f"\nthe confirming settle took out {self.settle['repaired']} blocks that did not "
+                     "stand, with what rested on them, and the time left did not place them all again")
         if self.coverage is not None:
             c = self.coverage
             text += f"; bare {c['bare_share_percent']:.1f}%"

@@ -472,6 +472,11 @@ def test_summary_says_when_porosity_misses_the_target():
     assert low.summary().endswith("\nporosity is 3.00 points below the target")
     short = replace(full, blocks=70)  # the count's own line says what is wrong
     assert short.summary().startswith("81 required, 70 fit") and "points" not in short.summary()
+    # Blocks the confirming settle took out are why a count ends below what the search showed.
+    lost = replace(short, settle={"repaired": 15, "rounds": 2})
+    assert "\nthe confirming settle took out 15 blocks that did not stand" in lost.summary()
+    assert "settle took out" not in replace(full, settle={"repaired": 15}).summary()  # all placed again
+    assert "settle took out" not in short.summary()
 
 
 def test_time_limit_is_honoured_and_result_valid(tiny, monkeypatch):
