@@ -489,14 +489,17 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
             break
         t0 = clock()
         more = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
-        if len(more) <= len(build):
-            break
-        again, check = confirm(problem, more, rng, origin, end)
-        if len(again) <= len(build) or not check.stable:
-            break
+        gained = len(more) > len(build)
+        if gained:
+            again, check = confirm(problem, more, rng, origin, end)
+            gained = len(again) > len(build) and check.stable
+        # Every refill tried is a phase, the ones that gained nothing too: their time is spent.
         phases.append({"strategy": "refill", "attempt": attempt, "seconds": clock() - t0,
-                       "blocks": len(again), "porosity_percent": again.porosity.percent,
-                       "added": len(again) - len(build)})
+                       "blocks": len(again) if gained else len(build),
+                       "porosity_percent": (again if gained else build).porosity.percent,
+                       "added": len(again) - len(build) if gained else 0})
+        if not gained:
+            break
         build, confirmation = again, check
     return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin, clock() - start)
 
