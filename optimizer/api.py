@@ -532,8 +532,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     """
     clock = problem.clock
     best = tried[chosen]
-    if not best.on_target(problem) or best.origin is None:
+    if not best.on_target(problem):
         return chosen, "toe rows are tried only once a layout reaches its count and porosity"
+    if best.origin is None:
+        return chosen, "toe rows are tried only around a pattern the beam search laid"
     scene = problem.scene
     if clock() + coverage_reserve(scene) > problem.deadline:
         return chosen, None

@@ -148,3 +148,30 @@ class TestStrategyContract:
         # The deadline is checked between steps: one step (a beam's few dozen drops) may run past it.
         assert clock() <= 0.5 + 1.0, f"{clock.drops} candidates lowered"
         assert_valid(tiny, phase.build, name in SETTLED)
+
+
+def test_a_block_on_rubble_is_seated_on_its_site():
+    """On a rough underlayer a block lowered straight down touches one bump and tips as it is let
+    go, off its pattern site. Seated, it is lowered already turned as it comes to rest there,
+    at the same place, and it stays where it was lowered."""
+    from optimizer.search.drop import Shape
+    from optimizer.search.hangings import families, hanging_of
+    from optimizer.search.physics import seated, settle_in
+
+    scene = load_scene(str(ROOT / "benchmarks" / "scenes" / "mini-rough.toml"))
+    pr = problem(scene)
+    build = Build(scene)
+    shape = Shape.of(scene.block, hanging_of(scene.block, families(scene.block)[0], 0.3))
+    tipped = 0
+    for x in np.arange(-3.0, 3.01, 0.5):
+        plain = build.lower(shape, x, 6.0)
+        assert plain is not None and plain.support == (GROUND,)
+        rest = settle_in(pr, build, plain)
+        if rest is plain or rest is None:
+            continue  # it stays as lowered (nothing to seat), or does not come to rest in time
+        tipped += 1
+        s = seated(pr, build, plain)
+        assert s is not plain and not np.allclose(s.pose.quaternion, plain.pose.quaternion)
+        np.testing.assert_allclose(s.pose.position[:2], plain.pose.position[:2])
+        assert settle_in(pr, build, s) is s
+    assert tipped >= 3, "the rubble must tip most blocks for the test to mean anything"

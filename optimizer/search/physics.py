@@ -52,9 +52,25 @@ def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candid
     A candidate lowered onto a flat foundation stands on one of its rest
     poses, and is kept as it is.
     """
-    if candidate.support == (GROUND,) and problem.scene.foundation.kind == "flat" and not candidate.loose:
-        return candidate
+    if candidate.support == (GROUND,) and not candidate.loose:
+        if problem.scene.foundation.kind == "flat":
+            return candidate
+        candidate = seated(problem, build, candidate)
     return settle_in(problem, build, candidate)
+
+
+def seated(problem: Problem, build: Build, candidate: Candidate) -> Candidate:
+    """A ground candidate on rubble, turned as it comes to rest there alone and lowered again
+    at the same place: it tips onto the bumps without sliding off its site."""
+    key = -2
+    block = build.block
+    result = settle(problem.scene, [(key, block, candidate.pose)], seconds=LOCAL_SECONDS, seed=0,
+                    movable={key}, thresholds=LOCAL_THRESHOLDS)
+    if result.stable or not result.at_rest:
+        return candidate
+    x, y = candidate.pose.position[:2]
+    again = build.lower(Shape.of(block, result.poses[key].quaternion), float(x), float(y))
+    return again if again is not None and again.support == (GROUND,) else candidate
 
 
 def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
