@@ -487,8 +487,8 @@ def _load_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
         _check_stl(p)
     try:
         loaded = trimesh.load(str(p), file_type=suffix, force="mesh", process=False)
-    except ImportError as exc:  # trimesh reaches for an optional text decoder on bytes it cannot read
-        raise InputError(f"{p}: cannot read mesh: not a valid .{suffix} file") from exc
+    except ImportError as exc:  # trimesh's optional text decoder (a dependency; here if it is lost)
+        raise InputError(f"{p}: cannot read mesh: its text is not UTF-8") from exc
     except Exception as exc:  # trimesh raises many types on malformed files
         raise InputError(f"{p}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=float)
@@ -510,12 +510,14 @@ def _check_stl(p: Path) -> None:
     with p.open("rb") as f:
         head = f.read(84)
     size = p.stat().st_size
-    if len(head) == 84 and 84 + 50 * int.from_bytes(head[80:84], "little") <= size:
-        return  # some writers pad a binary file after its triangles
+    if size == 0:
+        raise InputError(f"{p}: the mesh file is empty")
+    if len(head) == 84 and 84 + 50 * int.from_bytes(head[80:84], "little") == size:
+        return  # trimesh reads a binary file only at exactly this size
     if head.lstrip(b"\xef\xbb\xbf \t\r\n").lower().startswith(b"solid"):
         return
-    raise InputError(f"{p}: not an STL file: neither binary (too short for its triangle count) "
-                     "nor ASCII (it does not begin with 'solid')")
+    raise InputError(f"{p}: not an STL file: neither binary (its size does not match its triangle "
+                     "count) nor ASCII (it does not begin with 'solid')")
 
 
 # CoACD settings; part of the cache key, so changing one re-decomposes.

@@ -161,6 +161,8 @@ class OptimizeResult:
     cover_attempt : str or None
         Where the layout misses a coverage aim, what came of the attempt with
         toe rows first (:func:`covered_attempt`), in words for :meth:`summary`.
+    searched : int or None
+        Blocks the search placed before the settle that confirmed them.
     kept : dict or None
         With ``keep``: how many blocks were kept, and the ids of those among
         them that collide, stick out of the tolerance zone or fail the settle
@@ -185,6 +187,7 @@ class OptimizeResult:
     kept: dict[str, Any] | None = None
     time_limit_s: float | None = None
     cover_attempt: str | None = None
+    searched: int | None = None
 
     @property
     def valid(self) -> bool:
@@ -202,15 +205,16 @@ class OptimizeResult:
         verdict = {True: "stable", False: "NOT stable", None: "not settled"}[self.stable]
         text = (f"{head}; {self.collisions} collisions, {self.out_of_tolerance} out of tolerance, "
                 f"{verdict}; {self.seconds:.1f} s")
-        if self.blocks < self.required_blocks and self.settle.get("repaired"):
-            # Why the count can end below what the search showed on the way.
-            text += (f"\nthe confirming settle took out {self.settle['repaired']} blocks that did not "
-                     "stand, with what rested on them, and the time left did not place them all again")
         if self.coverage is not None:
             c = self.coverage
             text += f"; bare {c['bare_share_percent']:.1f}%"
             if c["max_bare_m"] is not None:
                 text += f", farthest {c['max_bare_m']:.2f} m from a block"
+        if self.searched is not None and self.blocks < min(self.searched, self.required_blocks):
+            # Why the count can end below what the search showed on the way.
+            text += (f"\nthe search placed {self.searched} blocks; the confirming settle took out those "
+                     f"that did not stand, with what rested on them, and {self.blocks} stood in the end")
+        if self.coverage is not None:
             text += self._not_covered()
         off = self.porosity_percent - self.target_porosity_percent
         if self.blocks >= self.required_blocks and abs(off) > TARGET_POINTS:
@@ -410,6 +414,7 @@ def optimize(
         kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
         if keep else None,
         cover_attempt=cover_note,
+        searched=best.searched,
     )
 
 
@@ -434,6 +439,7 @@ class _Attempt:
     origin: tuple[float, float] | None = None
     seconds: float = 0.0
     coverage: CoverageReport | None = None
+    searched: int | None = None  # blocks before the confirming settle
 
     def reached(self, problem: Problem) -> bool:
         return len(self.build) >= problem.required and self.stable is not False
@@ -478,6 +484,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     origin = phase.origin if phase else None
     if not settle_layout or (all_or_nothing and len(build) < problem.required):
         return _Attempt(build, phases, gap, {}, None, origin, clock() - start)
+    searched = len(build)
     build, confirmation = confirm(problem, build, rng, origin, end)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
     # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
@@ -501,7 +508,9 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         if not gained:
             break
         build, confirmation = again, check
-    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin, clock() - start)
+        searched = max(searched, len(more))
+    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin, clock() - start,
+                    searched=searched)
 
 
 def _one_origin_seconds(attempt: _Attempt) -> float:
@@ -527,8 +536,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     attempt is not kept, and the fill would only spend the time. Appends the
     attempt to ``tried`` and returns the index of the one to keep, the new
     one if it reaches its count and porosity too and covers better, with
-    what came of it in words (None where there is nothing to say: the
-    layout covers, or its coverage is not known).
+    what came of it in words (None where the layout covers).
     """
     clock = problem.clock
     best = tried[chosen]
@@ -538,7 +546,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, "toe rows are tried only around a pattern the beam search laid"
     scene = problem.scene
     if clock() + coverage_reserve(scene) > problem.deadline:
-        return chosen, None
+        return chosen, "no time was left for an attempt with toe rows first"
     best.coverage = coverage(scene, best.build.placed())
     if best.coverage.aims_met() == 2:
         return chosen, None
@@ -555,6 +563,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                           all_or_nothing=True))
     new = tried[-1]
     what = "an attempt with toe rows first"
+    if (new.searched or 0) >= problem.required > len(new.build):
+        return chosen, (f"{what} placed the count, but {len(new.build)} of {problem.required} blocks "
+                        "stood, so it was not kept")
     if len(new.build) < problem.required:
         return chosen, f"{what} placed {len(new.build)} of {problem.required} blocks, so it was not kept"
     if not new.reached(problem):

@@ -152,6 +152,15 @@ def test_open_mesh_is_an_input_error(tmp_path):
         mesh_block(str(path))
 
 
+def test_a_mesh_file_whose_text_is_not_utf8_loads(tmp_path):
+    """A maker's OBJ with a Latin-1 comment is a good mesh: trimesh decodes its text with
+    charset-normalizer (a dependency for that)."""
+    path = tmp_path / "café.obj"
+    text = trimesh.exchange.obj.export_obj(trimesh.creation.box([1.0, 1.0, 1.0]))
+    path.write_bytes("# bloc béton\n".encode("latin-1") + text.encode())
+    assert mesh_block(str(path)).volume == pytest.approx(1.0)
+
+
 def test_garbage_mesh_file_is_an_input_error(tmp_path):
     path = tmp_path / "junk.stl"
     path.write_bytes(b"\x00\x01 this is not an STL" * 3)

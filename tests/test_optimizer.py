@@ -473,10 +473,17 @@ def test_summary_says_when_porosity_misses_the_target():
     short = replace(full, blocks=70)  # the count's own line says what is wrong
     assert short.summary().startswith("81 required, 70 fit") and "points" not in short.summary()
     # Blocks the confirming settle took out are why a count ends below what the search showed.
-    lost = replace(short, settle={"repaired": 15, "rounds": 2})
-    assert "\nthe confirming settle took out 15 blocks that did not stand" in lost.summary()
-    assert "settle took out" not in replace(full, settle={"repaired": 15}).summary()  # all placed again
-    assert "settle took out" not in short.summary()
+    lost = replace(short, searched=78)
+    assert "\nthe search placed 78 blocks; the confirming settle took out" in lost.summary()
+    assert lost.summary().splitlines()[1].endswith("and 70 stood in the end")
+    assert "settle took out" not in replace(short, searched=70).summary()  # the search was short itself
+    assert "settle took out" not in replace(full, searched=81).summary()
+    # The coverage figures stay on the first line, the aims missed on a line of their own.
+    covered = {"bare_share_percent": 15.8, "max_bare_m": 2.22, "worst_point": [6.0, 10.6, 0.0],
+               "bare_distance_m": 0.83, "spacing_m": 0.25}
+    lines = replace(lost, coverage=covered).summary().splitlines()
+    assert lines[0].endswith("; bare 15.8%, farthest 2.22 m from a block")
+    assert lines[1].startswith("the search placed") and lines[2].startswith("the mound is not covered")
 
 
 def test_time_limit_is_honoured_and_result_valid(tiny, monkeypatch):

@@ -9,7 +9,10 @@
   bodies (``movable={new}``). If it stays where it was lowered, it is kept
   there; if it moves, it is kept where it comes to rest, provided it rests
   there whole, inside the tolerance zone and pressing into no block. This
-  costs 5-30 ms a candidate.
+  costs 5-30 ms a candidate. A block on the bare rubble is first seated
+  (:func:`seated`): let go alone, then lowered again on its site turned as it
+  came to rest, so that it does not tip off its site; that is one more such
+  run.
 * The final layout is settled (``settle.settle``, MuJoCo for 3D scenes). If
   some blocks move or turn too far, they are taken out together with every
   block resting on them, and placed again by the beam search.
@@ -50,7 +53,9 @@ def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candid
     """:func:`settle_in` for candidates that rest on other blocks or on a rough underlayer.
 
     A candidate lowered onto a flat foundation stands on one of its rest
-    poses, and is kept as it is.
+    poses, and is kept as it is. One on the rough underlayer alone is
+    :func:`seated` first. (The annealing keeps a move only if the block stays
+    as lowered; a seated block is lowered anew, so such a move is refused.)
     """
     if candidate.support == (GROUND,) and not candidate.loose:
         if problem.scene.foundation.kind == "flat":
