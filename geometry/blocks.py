@@ -487,8 +487,6 @@ def _load_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
         _check_stl(p)
     try:
         loaded = trimesh.load(str(p), file_type=suffix, force="mesh", process=False)
-    except ImportError as exc:  # trimesh's optional text decoder (a dependency; here if it is lost)
-        raise InputError(f"{p}: cannot read mesh: its text is not UTF-8") from exc
     except Exception as exc:  # trimesh raises many types on malformed files
         raise InputError(f"{p}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=float)

@@ -550,9 +550,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     best.coverage = coverage(scene, best.build.placed())
     if best.coverage.aims_met() == 2:
         return chosen, None
-    if clock() + _one_origin_seconds(best) > problem.deadline:
-        return chosen, (f"no time was left for an attempt with toe rows first "
-                        f"(about {_one_origin_seconds(best):.0f} s)")
+    needs = _one_origin_seconds(best)
+    if clock() + needs > problem.deadline:
+        return chosen, f"no time was left for an attempt with toe rows first (about {needs:.0f} s)"
     again = [ToeRows(accept=raised_check)]
     for s in strategies:
         if isinstance(s, BeamSearch):
