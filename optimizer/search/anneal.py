@@ -20,10 +20,8 @@ A move whose block would end out of tolerance or interpenetrate another
 Metropolis rule at temperature T. The energy (``optimizer.objective``) is
 updated per move: porosity through the exact tracker (one block's clipped
 volume), slice spread through centroid bins, support from the block's own
-support list. A move that would put a block on other blocks or on a rough
-underlayer is also settled locally (``optimizer.search.physics.raised_check``)
-before it is kept; a block the check seats on the rubble is weighed again as
-seated.
+support list. A move that would put a block on other blocks is also settled
+locally (``optimizer.search.physics.raised_check``) before it is kept.
 
 Temperature schedule: T0 is calibrated so that the average uphill move of a
 trial sample is accepted with probability 1/2; T falls geometrically to
@@ -181,30 +179,22 @@ class Annealing(Strategy):
             energy.add(build.poses[key].position)
         return after - before, new_weak
 
-    def _stands(self, problem: Problem, build: Build, key: int | None, c: Candidate) -> Candidate | None:
-        """The moved or inserted block as it stays when let go, or None.
+    def _stands(self, problem: Problem, build: Build, key: int | None, c: Candidate) -> bool:
+        """Whether the moved or inserted block stays where it was lowered when let go.
 
         The moved block's old pose is taken out of the collision world while
         it is let go, so that it does not hold up its own new pose. A move
         whose block would slide elsewhere is refused: the energy change was
-        worked out for where it was lowered. The one exception is a block on
-        the rubble alone, which the check seats on its site first (turned as
-        it comes to rest, lowered again at the same place): that block is
-        returned, and its move is weighed again.
+        worked out for where it was lowered.
         """
         assert self.accept is not None
         if key is not None:
             build.collide.remove(key)
         try:
-            got = self.accept(problem, build, c)
+            return self.accept(problem, build, c) is c
         finally:
             if key is not None:
                 build.collide.add(key, build.block, build.poses[key])
-        if got is c:
-            return c
-        seated = (got is not None and c.support == (GROUND,) and got.support == (GROUND,)
-                  and problem.scene.foundation.kind != "flat")
-        return got if seated else None
 
     def _apply(self, build: Build, energy: Energy, key: int | None, c: Candidate) -> None:
         if key is not None:
@@ -250,17 +240,9 @@ class Annealing(Strategy):
             if d > 0 and rng.random() >= math.exp(-d / temp):
                 rejected += 1
                 continue
-            if self.accept is not None:
-                got = self._stands(problem, build, key, c)
-                if got is not c and got is not None:  # seated: weigh the move again
-                    passed = max(d, 0.0)
-                    c = got
-                    d, new_weak = self._delta(problem, build, energy, key, c, weak)
-                    if d > passed and rng.random() >= math.exp(-(d - passed) / temp):
-                        got = None  # with the first test, accepted with probability exp(-d / T)
-                if got is None:
-                    rejected += 1
-                    continue
+            if self.accept is not None and not self._stands(problem, build, key, c):
+                rejected += 1
+                continue
             self._apply(build, energy, key, c)
             weak = new_weak
             current += d

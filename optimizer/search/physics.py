@@ -54,8 +54,8 @@ def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candid
 
     A candidate lowered onto a flat foundation stands on one of its rest
     poses, and is kept as it is. One on the rough underlayer alone is
-    :func:`seated` first, and the seated candidate is returned: the
-    annealing weighs such a move again for the seated block.
+    :func:`seated` first. (The annealing keeps a move only if the block stays
+    as lowered; a seated block is lowered anew, so such a move is refused.)
     """
     if candidate.support == (GROUND,) and not candidate.loose:
         if problem.scene.foundation.kind == "flat":
