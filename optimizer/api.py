@@ -26,7 +26,11 @@ The pipeline, each step a pluggable strategy instance:
    ``ATTEMPTS`` in all), and the best layout is kept;
 6. if the best layout reaches its count and porosity but leaves the mound's
    surface bare, and its time is left, one more attempt lays rows along the
-   toes first (:func:`covered_attempt`), and is kept if it covers better.
+   toes first (:func:`covered_attempt`), and is kept if it covers better;
+7. if the layout kept still leaves the surface bare, blocks that carry
+   nothing are moved one by one to where they cover most bare area, within
+   the porosity window, and the moves are kept if the layout then stands
+   (:func:`cover_repair`).
 
 Validity is never loosened: if the required count cannot be reached, the best
 valid layout found is returned with the count it reached.
@@ -50,11 +54,12 @@ from geometry.scene import Scene
 from .search.anneal import Annealing
 from .search.beam import BeamSearch
 from .search.build import Build
+from .search.cover import cover_moves
 from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
-from .search.physics import confirm, raised_check, stands
+from .search.physics import confirm, raised_check, stands, verdict
 from .search.problem import TARGET_POINTS, Clock, Phase, Problem, Strategy
 from .search.toe import ToeRows
 
@@ -336,7 +341,9 @@ def optimize(
         mound's surface bare (``geometry.coverage``'s aims), and its time is
         left, try once more with rows along the toes laid first
         (:func:`covered_attempt`); keep that layout if it reaches the count and
-        porosity too and covers better. Not with ``keep``.
+        porosity too and covers better (not with ``keep``). Then move blocks
+        that carry nothing to bare areas (:func:`cover_repair`; kept blocks
+        never move).
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
@@ -374,9 +381,16 @@ def optimize(
     cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
         chosen, cover_note = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
+    moves: dict[str, Any] | None = None
+    if cover and settle_layout:
+        tried[chosen], moves = cover_repair(problem, tried[chosen], rng, chosen + 1)
+        if moves and moves["moved"] and moves["stood"]:
+            moved = (f"moving {moves['moved']} blocks that carried nothing to bare areas took the bare "
+                     f"share from {moves['bare_before_percent']:.1f}% to {moves['bare_share_percent']:.1f}%")
+            cover_note = f"{cover_note}; {moved}" if cover_note else moved
     best = tried[chosen]
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
-    phases = [p for t in tried for p in t.phases]
+    phases = [p for t in tried for p in t.phases] + ([moves] if moves else [])
     if len(tried) > 1:
         phases.append({"strategy": "attempts", "attempts": len(tried), "chosen": chosen + 1,
                        "blocks": [len(t.build) for t in tried],
@@ -579,6 +593,44 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
     return len(tried) - 1, (f"the layout is that of {what}; without them "
                             f"{best.coverage.bare_share_percent:.1f}% was bare")
+
+
+def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int
+                 ) -> tuple[_Attempt, dict[str, Any] | None]:
+    """The attempt with free blocks moved to bare areas (``search.cover``), if it misses a coverage aim.
+
+    Only a layout that reaches its count and porosity and stands is
+    repaired, while the search's time lasts. The moved layout is settled
+    again (:func:`physics.verdict`); if it does not stand, the attempt is
+    returned as it was. Returns the attempt to keep and the ``cover`` phase
+    (None where nothing was tried).
+    """
+    clock, scene = problem.clock, problem.scene
+    if not attempt.on_target(problem) or attempt.stable is not True:
+        return attempt, None
+    if clock() + coverage_reserve(scene) > problem.deadline:
+        return attempt, None
+    t0 = clock()
+    if attempt.coverage is None:
+        attempt.coverage = coverage(scene, attempt.build.placed())
+    if attempt.coverage.aims_met() == 2:
+        return attempt, None
+    moved, after, stats = cover_moves(problem, attempt.build, attempt.coverage)
+    phase = {"strategy": "cover", "attempt": number, "seconds": 0.0, "blocks": len(moved),
+             "porosity_percent": moved.porosity.percent, **stats.to_dict(), "stood": None}
+    kept = attempt
+    if stats.moved:
+        result = verdict(problem, moved.placed(), rng)
+        phase["stood"] = bool(result.stable)
+        if result.stable:
+            settle = {**attempt.settle, "stable": True, "max_displacement_m": result.max_displacement_m,
+                      "max_rotation_deg": result.max_rotation_deg, "unstable": []}
+            kept = replace(attempt, build=moved, coverage=after, settle=settle)
+    if kept is attempt:
+        phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,
+                     bare_share_percent=attempt.coverage.bare_share_percent)
+    phase["seconds"] = clock() - t0
+    return kept, phase
 
 
 def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:

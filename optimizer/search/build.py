@@ -166,6 +166,10 @@ class Build:
         self.collide.add(key, self.block, c.pose)
         self.porosity.add(key, self.block, c.pose)
 
+    def place_at(self, pose: Pose) -> int:
+        """Add a block of a layout where it is, resting on what it touches, free to move later."""
+        return self.place(self._resting(pose, anyway=True))
+
     def keep(self, block_id: int, block_type: str, pose: Pose) -> int:
         """Add a block of a partial layout where it is, fixed: first in crane order, never moved.
 
@@ -173,7 +177,7 @@ class Build:
         nothing, collides or sticks out of the zone is kept all the same (the
         caller reports it).
         """
-        key = self.place(self._resting(pose, anyway=True))
+        key = self.place_at(pose)
         self.kept[key] = (block_id, block_type)
         return key
 

@@ -1,0 +1,186 @@
+"""Covering repair: blocks that carry nothing moved to where the mound is bare.
+
+The search lays a pattern that meets the count and the porosity; it does not
+aim for coverage (``geometry.coverage``). Where the layout it leaves misses a
+coverage aim, a block with nothing resting on it may be better placed where the
+surface is bare: on ``wall-shake`` the crest beside the wall was bare while the
+top row stood half a metre further out, and a crane lowering one of those
+blocks nearer the wall covers it.
+
+Each move takes one such block out and lowers it again, in any hanging, at
+the node of a grid near where it stood that covers the most bare area. It is
+kept only if the block stays where it was lowered when let go among its
+neighbours (or comes to rest valid: ``physics.settle_in``), the porosity
+stays within ``TARGET_POINTS`` of the target, and the exact coverage is
+better (``CoverageReport.better_than``). The moves are greedy, one at a
+time, the best of the blocks tried. The caller settles the whole layout
+again and keeps the moves only if it stands.
+
+How many moves, blocks and candidates there are is fixed, so a seed gives
+one result; the deadline only stops it early.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, coverage
+from geometry.pose import Pose
+
+from .build import Build, Candidate
+from .hangings import families, symmetry
+from .physics import settle_in
+from .problem import TARGET_POINTS, Problem
+from .shapes import ShapeCache
+
+#: Moves at most.
+MOVES = 12
+#: Blocks tried for each move: the free ones with the most bare area within their reach.
+BLOCKS_TRIED = 4
+#: Candidates per block let go (the ones that cover the most bare area by the bound).
+SETTLE_TOP = 6
+#: Yaws per hanging, spread over its symmetry period.
+YAWS = 4
+#: The grid of lowering nodes, in block heights: its step, and how far from where the
+#: block stood it reaches (a block moves within about its own width).
+GRID_H = 0.25
+LOCAL_H = 1.5
+
+
+@dataclass
+class CoverStats:
+    """What the repair did: moves kept, candidates let go, and the bare share before and after."""
+
+    moved: int = 0
+    tried: int = 0
+    bare_before_percent: float | None = None
+    bare_share_percent: float | None = None
+
+    def to_dict(self) -> dict:
+        return {"moved": self.moved, "tried": self.tried, "bare_before_percent": self.bare_before_percent,
+                "bare_share_percent": self.bare_share_percent}
+
+
+class BareArea:
+    """The bare samples of a coverage report, and a lower bound on how much of them a posed block covers.
+
+    The block's surface samples lie no further than ``spacing`` from any point
+    of its surface, so a bare sample within ``H / 2`` of one is covered by it.
+    """
+
+    def __init__(self, report: CoverageReport, block_height: float, local: cKDTree, reach: float):
+        on = report.bare & (report.samples.area > 0)
+        self.points = report.samples.points[on]
+        self.area = report.samples.area[on]
+        self.tree = cKDTree(self.points) if len(self.points) else None
+        self.limit = BARE_FRACTION * block_height
+        self.local = local
+        self.reach = reach
+
+    def near(self, position: np.ndarray, radius: float) -> float:
+        """Bare area within ``radius`` of a point."""
+        if self.tree is None:
+            return 0.0
+        return float(self.area[self.tree.query_ball_point(position, radius)].sum())
+
+    def covered(self, pose: Pose) -> float:
+        """Bare area the block at ``pose`` covers, at least."""
+        if self.tree is None:
+            return 0.0
+        near = self.tree.query_ball_point(pose.position, self.reach)
+        if not near:
+            return 0.0
+        near = np.asarray(near)
+        d, _ = self.local.query(pose.inverse_apply(self.points[near]), distance_upper_bound=self.limit)
+        return float(self.area[near][np.isfinite(d)].sum())
+
+
+def cover_moves(problem: Problem, build: Build, report: CoverageReport
+                ) -> tuple[Build, CoverageReport, CoverStats]:
+    """Move free blocks to bare areas while the coverage improves; returns a new build.
+
+    ``report`` is ``build``'s coverage. ``build`` is not changed.
+    """
+    block = problem.scene.block
+    build = build.copy()
+    stats = CoverStats(bare_before_percent=report.bare_share_percent,
+                       bare_share_percent=report.bare_share_percent)
+    local = cKDTree(block_samples(block, report.spacing_m))
+    reach = block.bounding_radius + BARE_FRACTION * block.height
+    shapes = ShapeCache(block)
+    hung = [shapes.hung(f, k * 2 * math.pi / symmetry(block, f) / YAWS)
+            for f in families(block) if f != "free" for k in range(YAWS)]
+    step, radius = GRID_H * block.height, LOCAL_H * block.height
+    offsets = [(dx, dy) for dx in np.arange(-radius, radius + 1e-9, step)
+               for dy in np.arange(-radius, radius + 1e-9, step) if math.hypot(dx, dy) <= radius]
+    for _ in range(MOVES):
+        if report.aims_met() == 2 or problem.time_left() <= 0:
+            break
+        bare = BareArea(report, block.height, local, reach)
+        free = build.free_keys()
+        weight = {k: bare.near(build.poses[k].position, reach) for k in free}
+        tried = sorted((k for k in free if weight[k] > 0), key=lambda k: -weight[k])[:BLOCKS_TRIED]
+        best: tuple[CoverageReport, int, Candidate] | None = None
+        for key in tried:
+            found = _best_for(problem, build, key, report, hung, offsets, local, reach, stats)
+            if found is not None and (best is None or found[0].better_than(best[0])):
+                best = (found[0], key, found[1])
+            if problem.time_left() <= 0:
+                break
+        if best is None or not best[0].better_than(report):
+            break
+        report, key, c = best
+        build.remove(key)
+        build.place(c)
+        stats.moved += 1
+        stats.bare_share_percent = report.bare_share_percent
+    return build, report, stats
+
+
+def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, hung: list,
+              offsets: list, local: cKDTree, reach: float, stats: CoverStats
+              ) -> tuple[CoverageReport, Candidate] | None:
+    """Where block ``key`` covers best when lowered again near where it stands, with that coverage."""
+    scene = problem.scene
+    others = [p for p in build.placed() if p[0] != key]
+    without = coverage(scene, others, report.spacing_m)
+    bare = BareArea(without, scene.block.height, local, reach)
+    x0, y0 = build.poses[key].position[:2]
+    filled = build.porosity.filled - build.porosity.contribution(key)
+    ranked = []
+    gone = frozenset({key})
+    for dx, dy in offsets:
+        x, y = float(x0 + dx), float(y0 + dy)
+        if bare.near(np.array([x, y, build.poses[key].position[2]]), reach + scene.block.height) <= 0:
+            continue
+        for shape in hung:
+            c = build.lower(shape, x, y, exclude=gone)
+            if c is None:
+                continue
+            if abs(build.porosity.percent_with(filled + c.inside) - problem.target) > TARGET_POINTS:
+                continue
+            gain = bare.covered(c.pose)
+            if gain > 0:
+                ranked.append((gain, len(ranked), c))
+    ranked.sort(key=lambda t: (-t[0], t[1]))
+    best: tuple[CoverageReport, Candidate] | None = None
+    build.collide.remove(key)  # the block does not hold up its own new pose
+    try:
+        for _, _, c in ranked[:SETTLE_TOP]:
+            if problem.time_left() <= 0:
+                break
+            stats.tried += 1
+            rested = settle_in(problem, build, c)
+            if rested is None or abs(build.porosity.percent_with(filled + rested.inside)
+                                     - problem.target) > TARGET_POINTS:
+                continue
+            after = coverage(scene, others + [(key, scene.block, rested.pose)], report.spacing_m)
+            if best is None or after.better_than(best[0]):
+                best = (after, rested)
+    finally:
+        build.collide.add(key, build.block, build.poses[key])
+    return best
