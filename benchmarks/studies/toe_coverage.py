@@ -77,11 +77,12 @@ from common import ROOT, Run  # noqa: E402
 from geometry.checks import check_layout  # noqa: I001
 from geometry.clip import volume_inside
 from geometry.collision import world_of
-from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, coverage, distance_to_block
+from geometry.coverage import CoverageReport, coverage, distance_to_block
 from geometry.layout import read_layout
 from geometry.porosity import porosity
 from geometry.scene import Scene
 from optimizer.search.build import Build, Candidate
+from optimizer.search.cover import BareArea
 from optimizer.search.drop import Shape
 from optimizer.search.hangings import families, hanging_of, symmetry
 from optimizer.search.patterns import lattice_for
@@ -121,35 +122,6 @@ OPTIMIZE_SEEDS = (1, 2, 3)
 #: neighbours are those within 2.5 bounding radii).
 LOWER_RADIUS = 2.4
 SETTLE_RADIUS = 4.0
-
-
-def bare_tree(cov: CoverageReport) -> tuple[cKDTree, np.ndarray, np.ndarray]:
-    """The bare samples that carry area: a tree over them, their points and their areas."""
-    on = cov.bare & (cov.samples.area > 0)
-    pts = cov.samples.points[on]
-    return cKDTree(pts), pts, cov.samples.area[on]
-
-
-class Bound:
-    """A lower bound on the bare area a posed block covers: bare samples within H/2 of its surface samples.
-
-    The block's samples are no further than ``spacing`` from any point of its
-    surface, so a sample within H/2 means a covered point (``geometry.coverage``).
-    """
-
-    def __init__(self, scene: Scene, spacing: float):
-        self.block = scene.block
-        self.limit = BARE_FRACTION * scene.block.height
-        self.local = cKDTree(block_samples(self.block, spacing))
-        self.reach = self.block.bounding_radius + self.limit
-
-    def gain(self, pose, tree: cKDTree, pts: np.ndarray, area: np.ndarray) -> float:
-        near = tree.query_ball_point(pose.position, self.reach)
-        if not near:
-            return 0.0
-        near = np.asarray(near)
-        d, _ = self.local.query(pose.inverse_apply(pts[near]), distance_upper_bound=self.limit)
-        return float(area[near][np.isfinite(d)].sum())
 
 
 def measure(scene: Scene, placed: list, stage: str, added: int, settled: bool | None = None,
@@ -232,9 +204,10 @@ class Greedy:
         d, _ = cKDTree(pts[:, :2]).query(grid * GRID, distance_upper_bound=REACH)
         return [tuple(map(int, g)) for g in grid[np.isfinite(d)]]
 
-    def step(self, cov: CoverageReport, bound: Bound) -> tuple[Candidate, str, CoverageReport, dict] | None:
+    def step(self, cov: CoverageReport) -> tuple[Candidate, str, CoverageReport, dict] | None:
         """The candidate that leaves the least bare area, with its coverage; None if none lowers it."""
-        tree, pts, area = bare_tree(cov)
+        bare = BareArea(cov, self.scene.block)
+        pts = bare.points
         ranked = []
         for ix, iy in self.nodes(pts):
             for s, (_, shape) in enumerate(self.shapes):
@@ -244,7 +217,7 @@ class Greedy:
                     self.lowered[key] = self.build.lower(shape, ix * GRID, iy * GRID, loose=True)
                 c = self.lowered[key]
                 if c is not None:
-                    g = bound.gain(c.pose, tree, pts, area)
+                    g = bare.covered(c.pose)
                     if g > 0:
                         ranked.append((g, key))
         ranked.sort(reverse=True)
@@ -254,7 +227,7 @@ class Greedy:
                 self.rested[key] = settle_in(self.problem, self.build, self.lowered[key])
             c = self.rested[key]
             if c is not None:
-                resting.append((bound.gain(c.pose, tree, pts, area), key, c))
+                resting.append((bare.covered(c.pose), key, c))
         resting.sort(key=lambda t: -t[0])
         best = None
         placed = self.build.placed()
@@ -291,7 +264,6 @@ def main() -> None:
     row, cov = measure(scene, build.placed(), "reference", 0, ok)
     rows = [row]
     show(row)
-    bound = Bound(scene, cov.spacing_m)
     greedy = Greedy(scene, build, problem)
     added: list[int] = []
     met_at: dict[str, Any] | None = None
@@ -301,7 +273,7 @@ def main() -> None:
             stop = "coverage met"
             break
         t = time.perf_counter()
-        found = greedy.step(cov, bound)
+        found = greedy.step(cov)
         if found is None:
             stop = "no valid candidate lowers the bare area"
             break

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from geometry.blocks import Block
 from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, coverage
 from geometry.pose import Pose
 
@@ -72,14 +73,14 @@ class BareArea:
     of its surface, so a bare sample within ``H / 2`` of one is covered by it.
     """
 
-    def __init__(self, report: CoverageReport, block_height: float, local: cKDTree, reach: float):
+    def __init__(self, report: CoverageReport, block: Block):
         on = report.bare & (report.samples.area > 0)
         self.points = report.samples.points[on]
         self.area = report.samples.area[on]
         self.tree = cKDTree(self.points) if len(self.points) else None
-        self.limit = BARE_FRACTION * block_height
-        self.local = local
-        self.reach = reach
+        self.limit = BARE_FRACTION * block.height
+        self.local = cKDTree(block_samples(block, report.spacing_m))
+        self.reach = block.bounding_radius + self.limit  # no sample of the block is further out
 
     def near(self, position: np.ndarray, radius: float) -> float:
         """Bare area within ``radius`` of a point."""
@@ -109,8 +110,6 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
     build = build.copy()
     stats = CoverStats(bare_before_percent=report.bare_share_percent,
                        bare_share_percent=report.bare_share_percent)
-    local = cKDTree(block_samples(block, report.spacing_m))
-    reach = block.bounding_radius + BARE_FRACTION * block.height
     shapes = ShapeCache(block)
     hung = [shapes.hung(f, k * 2 * math.pi / symmetry(block, f) / YAWS)
             for f in families(block) if f != "free" for k in range(YAWS)]
@@ -120,13 +119,13 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
     for _ in range(MOVES):
         if report.aims_met() == 2 or problem.time_left() <= 0:
             break
-        bare = BareArea(report, block.height, local, reach)
+        bare = BareArea(report, block)
         free = build.free_keys()
-        weight = {k: bare.near(build.poses[k].position, reach) for k in free}
+        weight = {k: bare.near(build.poses[k].position, bare.reach) for k in free}
         tried = sorted((k for k in free if weight[k] > 0), key=lambda k: -weight[k])[:BLOCKS_TRIED]
         best: tuple[CoverageReport, int, Candidate] | None = None
         for key in tried:
-            found = _best_for(problem, build, key, report, hung, offsets, local, reach, stats)
+            found = _best_for(problem, build, key, report, hung, offsets, stats)
             if found is not None and (best is None or found[0].better_than(best[0])):
                 best = (found[0], key, found[1])
             if problem.time_left() <= 0:
@@ -142,20 +141,19 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
 
 
 def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, hung: list,
-              offsets: list, local: cKDTree, reach: float, stats: CoverStats
-              ) -> tuple[CoverageReport, Candidate] | None:
+              offsets: list, stats: CoverStats) -> tuple[CoverageReport, Candidate] | None:
     """Where block ``key`` covers best when lowered again near where it stands, with that coverage."""
     scene = problem.scene
     others = [p for p in build.placed() if p[0] != key]
     without = coverage(scene, others, report.spacing_m)
-    bare = BareArea(without, scene.block.height, local, reach)
+    bare = BareArea(without, scene.block)
     x0, y0 = build.poses[key].position[:2]
     filled = build.porosity.filled - build.porosity.contribution(key)
     ranked = []
     gone = frozenset({key})
     for dx, dy in offsets:
         x, y = float(x0 + dx), float(y0 + dy)
-        if bare.near(np.array([x, y, build.poses[key].position[2]]), reach + scene.block.height) <= 0:
+        if bare.near(np.array([x, y, build.poses[key].position[2]]), bare.reach + scene.block.height) <= 0:
             continue
         for shape in hung:
             c = build.lower(shape, x, y, exclude=gone)
