@@ -11,6 +11,7 @@ from geometry.layout import read_layout
 from geometry.scene import load_scene
 from optimizer.search import cover
 from optimizer.search.build import Build
+from tests.clock import WorkClock
 from tests.conftest import ROOT
 from tests.test_strategies import problem
 
@@ -59,3 +60,16 @@ def test_kept_blocks_never_move(monkeypatch):
     assert stats.moved == 0 and stats.tried == 0
     assert [moved.poses[k].position.tolist() for k in moved.order] == \
         [build.poses[k].position.tolist() for k in build.order]
+
+
+def test_the_repair_keeps_the_deadline(mini_reference, monkeypatch):
+    """Half a fake second, where each candidate lowered costs 10 ms of it (tests/clock.py): one
+    block's grid alone is some 1500 lowerings, so the clock must be read inside it."""
+    scene, build = mini_reference
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    pr = problem(scene, seconds=0.5, clock=clock)
+    moved, after, stats = cover.cover_moves(pr, build, coverage(scene, build.placed()))
+    assert clock.drops > 0, "the repair must have started for the test to mean anything"
+    assert clock() <= 0.5 + 1.0, f"{clock.drops} candidates lowered, {clock.settles} let go"
+    report = check_layout(scene, moved.placed())
+    assert not report.collisions and not report.out_of_tolerance

@@ -367,7 +367,7 @@ def test_an_all_or_nothing_attempt_left_short_is_not_settled(tiny):
 def test_behind_a_wall_the_toe_rows_bring_every_point_within_h_of_a_block():
     """``wall-shake`` (benchmarks/scenes), seed 3: the first layout leaves the seaward toe
     further than H from any block; the attempt with a toe row first reaches the count
-    and porosity too, and is kept."""
+    and porosity too, and is kept; with the covering repair the layout meets every item."""
     scene = load_scene(str(ROOT / "benchmarks" / "scenes" / "wall-shake.toml"))
     r = optimize(scene, seed=3)
     attempts = next(p for p in r.phases if p["strategy"] == "attempts")
@@ -377,8 +377,12 @@ def test_behind_a_wall_the_toe_rows_bring_every_point_within_h_of_a_block():
     bare = attempts["bare_share_percent"]
     assert r.coverage["max_bare_m"] <= scene.block.height
     assert bare[toe["attempt"] - 1] < bare[0]
-    if r.coverage["bare_share_percent"] > 5.0:
-        assert f"without them {bare[0]:.1f}% was bare" in r.summary()
+    # The rows leave the crest beside the wall bare (5.2 %); moving top blocks that carry
+    # nothing nearer the wall covers it, and this seed then meets both aims.
+    moves = next(p for p in r.phases if p["strategy"] == "cover")
+    assert moves["attempt"] == toe["attempt"] and moves["moved"] > 0 and moves["stood"]
+    assert moves["bare_before_percent"] > 5.0 >= r.coverage["bare_share_percent"], r.summary()
+    assert "not covered" not in r.summary()
 
 
 @pytest.mark.parametrize("stands, searches", [(True, 1), (False, 3)])

@@ -17,7 +17,8 @@ time, the best of the blocks tried. The caller settles the whole layout
 again and keeps the moves only if it stands.
 
 How many moves, blocks and candidates there are is fixed, so a seed gives
-one result; the deadline only stops it early.
+one result; the deadline only stops it early (it is read before each node
+of the grid is lowered at, and before each candidate is let go and measured).
 """
 
 from __future__ import annotations
@@ -145,13 +146,17 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
     """Where block ``key`` covers best when lowered again near where it stands, with that coverage."""
     scene = problem.scene
     others = [p for p in build.placed() if p[0] != key]
+    t0 = problem.now()
     without = coverage(scene, others, report.spacing_m)
+    measuring = problem.now() - t0  # what one more exact coverage costs
     bare = BareArea(without, scene.block)
     x0, y0 = build.poses[key].position[:2]
     filled = build.porosity.filled - build.porosity.contribution(key)
     ranked = []
     gone = frozenset({key})
     for dx, dy in offsets:
+        if problem.time_left() <= 0:
+            return None
         x, y = float(x0 + dx), float(y0 + dy)
         if bare.near(np.array([x, y, build.poses[key].position[2]]), bare.reach + scene.block.height) <= 0:
             continue
@@ -169,7 +174,7 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
     build.collide.remove(key)  # the block does not hold up its own new pose
     try:
         for _, _, c in ranked[:SETTLE_TOP]:
-            if problem.time_left() <= 0:
+            if problem.time_left() <= measuring:
                 break
             stats.tried += 1
             rested = settle_in(problem, build, c)
