@@ -221,6 +221,10 @@ class CoverageReport:
     bare : (n,) bool
         Which samples are bare (for the report's picture).
     samples : SurfaceSamples
+    distance : (n,) float, optional
+        Each sample's distance to the nearest block, exact where it decides
+        whether the sample is bare or where it is near the largest
+        (:func:`coverage_after` starts from it).
     """
 
     bare_share_percent: float
@@ -230,6 +234,7 @@ class CoverageReport:
     spacing_m: float
     bare: np.ndarray
     samples: SurfaceSamples
+    distance: np.ndarray | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """The ``coverage`` object of ``shoha check --json`` (docs/contract.md)."""
@@ -267,16 +272,77 @@ def coverage(scene: Scene, placed: Placed, spacing: float | None = None) -> Cove
     """
     samples = surface_samples(scene, spacing)
     limit = BARE_FRACTION * scene.block.height
-    pts = samples.points
+    return _report(samples, limit, _distances(samples.points, placed, samples.spacing, limit))
+
+
+def coverage_after(scene: Scene, placed: Placed, before: CoverageReport, changed: Sequence[np.ndarray]
+                   ) -> CoverageReport:
+    """The coverage of ``placed``, which differs from the layout ``before`` measured only in blocks
+    taken out or put in with their centroids at ``changed``: the same figures as :func:`coverage`,
+    measured again only near them.
+
+    Only a sample whose nearest block was taken out, and so lay within ``before.max_bare_m``
+    and a bounding radius of its centroid, or that a block put in comes nearer to than its
+    nearest before, can change: those within that reach of a changed centroid are measured
+    again, against the blocks near them.
+    """
+    if before.distance is None or not math.isfinite(before.max_bare_m) or not placed:
+        return coverage(scene, placed, before.spacing_m)
+    samples = before.samples
+    limit = before.bare_distance_m
+    radius = max(block.bounding_radius for _, block, _ in placed)
+    reach = before.max_bare_m + radius + samples.spacing
+    tree = cKDTree(samples.points)
+    idx = np.unique(np.concatenate([np.asarray(tree.query_ball_point(c, reach), dtype=int) for c in changed]))
+    dist = before.distance.copy()
+    centres = np.array([pose.position for _, _, pose in placed])
+    if len(idx):
+        # A block further than 3 reaches from every change is more than 2 reaches from these
+        # samples: if one lies further than that from its nearest block here, measure it all.
+        local = _near(placed, centres, np.asarray(changed), 3 * reach)
+        dist[idx] = _distances(samples.points[idx], local, samples.spacing, limit)
+        if not local or dist[idx].max() > 2 * reach - radius:
+            return coverage(scene, placed, before.spacing_m)
+    # Far from the changes a sample's distance may be the bound, up to a cell over the true one;
+    # the largest must be exact, as coverage() has it: measure exactly from the top down until
+    # every sample within a cell of the largest is.
+    exact = np.zeros(len(dist), bool)
+    while True:
+        top = np.flatnonzero((dist >= dist.max() - samples.spacing) & ~exact)
+        if not len(top):
+            break
+        pts = samples.points[top]
+        dist[top] = _distances(pts, _near(placed, centres, pts, float(dist[top].max()) + radius),
+                               samples.spacing, limit, exact=True)
+        exact[top] = True
+    return _report(samples, limit, dist)
+
+
+def _near(placed: Placed, centres: np.ndarray, points: np.ndarray, reach: float) -> list:
+    """The blocks whose centroids lie within ``reach`` of any of ``points``."""
+    hit = cKDTree(points).query_ball_point(centres, reach)
+    return [p for p, h in zip(placed, hit, strict=True) if h]
+
+
+def _report(samples: SurfaceSamples, limit: float, dist: np.ndarray) -> CoverageReport:
+    bare = dist > limit
+    share = float(100.0 * samples.area[bare].sum() / samples.area.sum())
+    worst = int(np.argmax(dist))
+    return CoverageReport(share, float(dist[worst]), tuple(float(v) for v in samples.points[worst]),
+                          float(limit), samples.spacing, bare, samples, dist)
+
+
+def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact: bool = False) -> np.ndarray:
+    """Each point's distance to the nearest block: exact where it decides the point is bare, and
+    near the largest (everywhere with ``exact``); elsewhere an upper bound at most ``step`` over it."""
     dist = np.full(len(pts), np.inf)
-    if placed:
-        step = samples.spacing
+    if placed and len(pts):
         clouds = [pose.apply(block_samples(block, step)) for _, block, pose in placed]
         owner = np.repeat(np.arange(len(placed)), [len(c) for c in clouds])
         upper, nearest = cKDTree(np.concatenate(clouds)).query(pts)
         dist = upper.copy()  # the true distance is in [upper - step, upper]
         # Exact where the bound leaves the verdict open, and near the largest distance.
-        todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step)
+        todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step) | exact
         centres = cKDTree(np.array([pose.position for _, _, pose in placed]))
         radius = max(block.bounding_radius for _, block, _ in placed)
         points = np.flatnonzero(todo)
@@ -292,8 +358,4 @@ def coverage(scene: Scene, placed: Placed, spacing: float | None = None) -> Cove
         for k, members in pairs.items():
             idx = np.array(members)
             dist[idx] = np.minimum(dist[idx], distance_to_block(pts[idx], placed[k][1], placed[k][2]))
-    bare = dist > limit
-    share = float(100.0 * samples.area[bare].sum() / samples.area.sum())
-    worst = int(np.argmax(dist))
-    return CoverageReport(share, float(dist[worst]), tuple(float(v) for v in pts[worst]), float(limit),
-                          samples.spacing, bare, samples)
+    return dist

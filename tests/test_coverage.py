@@ -136,3 +136,33 @@ def test_covering_better_is_more_aims_met_then_less_bare():
     assert not _report(5.5, 2.5).better_than(_report(6.0, 1.5))
     assert _report(7.0, 2.5).better_than(_report(8.0, 2.1))
     assert not _report(7.0, 1.5).better_than(_report(7.0, 1.5))
+
+
+def test_coverage_measured_again_near_a_change_is_the_whole_measure():
+    """``coverage_after`` measures only near the blocks taken out or put in; its figures must be
+    those of ``coverage`` on the whole layout: a block of the ``mini`` reference taken out, one
+    moved, and one put in where the toe is bare."""
+    from geometry.coverage import coverage_after
+    from geometry.layout import read_layout
+    from geometry.scene import load_scene
+    from tests.conftest import ROOT
+
+    scene = load_scene("mini")
+    placed = read_layout(ROOT / "tests" / "data" / "mini-reference.json").placed()
+    before = coverage(scene, placed)
+    k = int(np.argmax([p.position[2] for _, _, p in placed]))  # a block of the crest
+    _, block, pose = placed[k]
+    out = placed[:k] + placed[k + 1:]
+    moved = out + [(k, block, Pose(pose.position + [0.0, 0.0, 0.6], pose.quaternion))]
+    toe = Pose([5.5, 6.0, 0.6], pose.quaternion)
+    put = placed + [(999, block, toe)]
+    # Put in at the farthest point, the largest distance moves to where it was only bounded.
+    worst = Pose([5.5, before.worst_point[1], 0.6], pose.quaternion)
+    for layout, changed in ((out, [pose.position]), (moved, [pose.position, pose.position + [0, 0, 0.6]]),
+                            (put, [toe.position]), (placed + [(999, block, worst)], [worst.position])):
+        whole, local = coverage(scene, layout), coverage_after(scene, layout, before, changed)
+        assert local.bare_share_percent == pytest.approx(whole.bare_share_percent, abs=1e-9)
+        assert local.max_bare_m == pytest.approx(whole.max_bare_m, abs=1e-9)
+        assert np.array_equal(local.bare, whole.bare)
+    assert coverage(scene, put).bare_share_percent < before.bare_share_percent
+    assert coverage(scene, out).bare_share_percent > before.bare_share_percent

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from geometry.blocks import Block
-from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, coverage
+from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, coverage_after
 from geometry.pose import Pose
 
 from .build import Build, Candidate
@@ -147,7 +147,7 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
     scene = problem.scene
     others = [p for p in build.placed() if p[0] != key]
     t0 = problem.now()
-    without = coverage(scene, others, report.spacing_m)
+    without = coverage_after(scene, others, report, [build.poses[key].position])
     measuring = problem.now() - t0  # what one more exact coverage costs
     bare = BareArea(without, scene.block)
     x0, y0 = build.poses[key].position[:2]
@@ -181,7 +181,8 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
             if rested is None or abs(build.porosity.percent_with(filled + rested.inside)
                                      - problem.target) > TARGET_POINTS:
                 continue
-            after = coverage(scene, others + [(key, scene.block, rested.pose)], report.spacing_m)
+            after = coverage_after(scene, others + [(key, scene.block, rested.pose)], without,
+                                   [rested.pose.position])
             if best is None or after.better_than(best[0]):
                 best = (after, rested)
     finally:
