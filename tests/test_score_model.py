@@ -1,7 +1,7 @@
 """The scoring model (issue 26): its properties 1-7, on the mini reference and trainee-like saves.
 
-The reference is tests/data/mini-reference.json (the seed-1 layout of ``mini``:
-75 blocks, valid and stable). The saves are its prefixes in crane order and
+The reference is tests/data/mini-reference.json (a seed-1 layout of ``mini``:
+75 blocks, valid and stable; tests/data/README.md). The saves are its prefixes in crane order and
 copies with the faults of tests/perturb.py put in. Every expectation follows
 from the model's definition in docs/scoring.md; none is a number copied from
 a run. Each property is checked for the default weights and for a few random
