@@ -272,6 +272,8 @@ def main() -> None:
         todo = [(m, s, n) for m in args.methods for s in scenes for n in seeds[m]]
         ran = {(m, s) for m, s, _ in todo}
         reused = [r for r in last_rows(stem) if (r["method"], r["scene"]) not in ran] if args.update else []
+        if not reused:
+            run.params["reused_from"] = None  # every row is this run's
         with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
             rows = list(pool.map(lambda job: one(*job), todo))
         order = {(m, s): i for i, (m, s) in enumerate((m, s) for m in ("new", "old") for s in SCENES)}

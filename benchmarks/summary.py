@@ -482,7 +482,8 @@ def values() -> dict[str, Any]:
             v[f"{key}_when"] = (f"shoha {machine.get('commit', '?')} on {machine.get('date', '?')[:10]}, "
                                 f"{machine.get('cores', '?')} cores, 1-minute load "
                                 f"{(machine.get('load_average') or ['?'])[0]} at the start"
-                                + (f", the rows of the other scenes kept from {earlier}" if earlier else ""))
+                                + (f", the rows it did not run (other scenes, or the old method) "
+                                   f"kept from {earlier}" if earlier else ""))
             v[f"{key}_rows"] = gr
 
     kp = rows("keep")

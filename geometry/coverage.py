@@ -21,9 +21,10 @@ sample is at least the true distance and at most ``spacing`` more; only points
 that bound leaves undecided, and the points near the largest distance, are
 measured exactly.
 
-The optimizer measures its final layout with the same function
-(``optimizer.api``); the search itself does not aim for coverage yet
-(docs/coverage-study.md).
+The optimizer measures its layouts with the same function (``optimizer.api``);
+its covering repair (``optimizer.search.cover``) moves blocks to bare areas and
+measures each move with :func:`coverage_after`, which measures again only near
+the blocks that changed and gives the same figures (docs/coverage-study.md).
 """
 
 from __future__ import annotations
@@ -284,7 +285,8 @@ def coverage_after(scene: Scene, placed: Placed, before: CoverageReport, changed
     Only a sample whose nearest block was taken out, and so lay within ``before.max_bare_m``
     and a bounding radius of its centroid, or that a block put in comes nearer to than its
     nearest before, can change: those within that reach of a changed centroid are measured
-    again, against the blocks near them.
+    again, against the blocks near them. The reach has a sampling cell more: a sample's
+    distance kept from ``before`` may be the bound, up to a cell over the true one.
     """
     if before.distance is None or not math.isfinite(before.max_bare_m) or not placed:
         return coverage(scene, placed, before.spacing_m)

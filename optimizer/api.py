@@ -165,7 +165,8 @@ class OptimizeResult:
         The limit the run had (the default one unless given).
     cover_attempt : str or None
         Where the layout misses a coverage aim, what came of the attempt with
-        toe rows first (:func:`covered_attempt`), in words for :meth:`summary`.
+        toe rows first (:func:`covered_attempt`) and of the blocks moved to
+        bare areas (:func:`cover_repair`), in words for :meth:`summary`.
     searched : int or None
         Blocks the search placed before the settle that confirmed them.
     kept : dict or None
@@ -341,9 +342,9 @@ def optimize(
         mound's surface bare (``geometry.coverage``'s aims), and its time is
         left, try once more with rows along the toes laid first
         (:func:`covered_attempt`); keep that layout if it reaches the count and
-        porosity too and covers better (not with ``keep``). Then move blocks
-        that carry nothing to bare areas (:func:`cover_repair`; kept blocks
-        never move).
+        porosity too and covers better (not with ``keep``). Then, with
+        ``settle_layout``, move blocks that carry nothing to bare areas
+        (:func:`cover_repair`; kept blocks never move).
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
@@ -381,14 +382,15 @@ def optimize(
     cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
         chosen, cover_note = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
+    best = tried[chosen]
     moves: dict[str, Any] | None = None
     if cover and settle_layout:
-        tried[chosen], moves = cover_repair(problem, tried[chosen], rng, chosen + 1)
+        # The attempts keep their own figures (the attempts phase); the repaired layout is written.
+        best, moves = cover_repair(problem, best, rng, chosen + 1, end)
         if moves and moves["moved"] and moves["stood"]:
             moved = (f"moving {moves['moved']} blocks that carried nothing to bare areas took the bare "
                      f"share from {moves['bare_before_percent']:.1f}% to {moves['bare_share_percent']:.1f}%")
             cover_note = f"{cover_note}; {moved}" if cover_note else moved
-    best = tried[chosen]
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     phases = [p for t in tried for p in t.phases] + ([moves] if moves else [])
     if len(tried) > 1:
@@ -595,36 +597,44 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                             f"{best.coverage.bare_share_percent:.1f}% was bare")
 
 
-def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int
+def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int, end: float
                  ) -> tuple[_Attempt, dict[str, Any] | None]:
     """The attempt with free blocks moved to bare areas (``search.cover``), if it misses a coverage aim.
 
     Only a layout that reaches its count and porosity and stands is
-    repaired, while the search's time lasts. The moved layout is settled
-    again (:func:`physics.verdict`); if it does not stand, the attempt is
-    returned as it was. Returns the attempt to keep and the ``cover`` phase
-    (None where nothing was tried).
+    repaired, while the search's time lasts, less half a settle's reserve
+    (a move's last steps can run a little past it). The moved layout is
+    settled again (:func:`physics.verdict`, within the settle's reserve
+    before ``end``), and written as moved, each block where it came to rest
+    when let go among its neighbours; if it does not stand, or there is no
+    time to settle it, the attempt is returned as it was. Returns the
+    attempt to keep (a new one; ``attempt`` keeps its own layout) and the
+    ``cover`` phase (None where nothing was tried).
     """
     clock, scene = problem.clock, problem.scene
     if not attempt.on_target(problem) or attempt.stable is not True:
         return attempt, None
-    if clock() + coverage_reserve(scene) > problem.deadline:
+    reserve = settle_reserve(scene)
+    if clock() + coverage_reserve(scene) > problem.deadline - reserve / 2:
         return attempt, None
     t0 = clock()
     if attempt.coverage is None:
         attempt.coverage = coverage(scene, attempt.build.placed())
     if attempt.coverage.aims_met() == 2:
         return attempt, None
-    moved, after, stats = cover_moves(problem, attempt.build, attempt.coverage)
+    short = replace(problem, deadline=problem.deadline - reserve / 2)
+    moved, after, stats = cover_moves(short, attempt.build, attempt.coverage)
     phase = {"strategy": "cover", "attempt": number, "seconds": 0.0, "blocks": len(moved),
              "porosity_percent": moved.porosity.percent, **stats.to_dict(), "stood": None}
     kept = attempt
-    if stats.moved:
+    if stats.moved and clock() + reserve <= end:
+        t1 = clock()
         result = verdict(problem, moved.placed(), rng)
         phase["stood"] = bool(result.stable)
         if result.stable:
             settle = {**attempt.settle, "stable": True, "max_displacement_m": result.max_displacement_m,
-                      "max_rotation_deg": result.max_rotation_deg, "unstable": []}
+                      "max_rotation_deg": result.max_rotation_deg, "unstable": [],
+                      "seconds": attempt.settle.get("seconds", 0.0) + clock() - t1}
             kept = replace(attempt, build=moved, coverage=after, settle=settle)
     if kept is attempt:
         phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,

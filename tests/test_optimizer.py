@@ -336,7 +336,7 @@ def test_a_covered_attempt_that_falls_short_is_not_kept(tiny):
     assert not any(p["strategy"] in ("toe", "cover") for p in plain.phases)
     moves = next(p for p in r.phases if p["strategy"] == "cover")
     assert moves["attempt"] == attempts["chosen"] and moves["moved"] > 0 and moves["stood"]
-    assert len(_poses(r.layout) - _poses(plain.layout)) == moves["moved"]
+    assert 1 <= len(_poses(r.layout) - _poses(plain.layout)) <= moves["moved"]  # a block may move twice
     assert len(r.layout.blocks) == len(plain.layout.blocks)
     # The summary says the mound is not covered, and what came of the attempt and the moves.
     said = r.summary().splitlines()[-1]

@@ -34,7 +34,7 @@ from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, cove
 from geometry.pose import Pose
 
 from .build import Build, Candidate
-from .hangings import families, symmetry
+from .hangings import symmetry
 from .physics import settle_in
 from .problem import TARGET_POINTS, Problem
 from .shapes import ShapeCache
@@ -113,7 +113,7 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
                        bare_share_percent=report.bare_share_percent)
     shapes = ShapeCache(block)
     hung = [shapes.hung(f, k * 2 * math.pi / symmetry(block, f) / YAWS)
-            for f in families(block) if f != "free" for k in range(YAWS)]
+            for f in problem.families if f != "free" for k in range(YAWS)]
     step, radius = GRID_H * block.height, LOCAL_H * block.height
     offsets = [(dx, dy) for dx in np.arange(-radius, radius + 1e-9, step)
                for dy in np.arange(-radius, radius + 1e-9, step) if math.hypot(dx, dy) <= radius]
@@ -138,6 +138,7 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
         build.place(c)
         stats.moved += 1
         stats.bare_share_percent = report.bare_share_percent
+        problem.tell("cover", build, f"{stats.moved} moved, bare {report.bare_share_percent:.1f}%")
     return build, report, stats
 
 
