@@ -82,3 +82,19 @@ def test_the_repair_keeps_the_deadline(mini_reference, monkeypatch):
     assert clock() <= 0.5 + 0.25, f"{clock.drops} candidates lowered, {clock.settles} let go"
     report = check_layout(scene, moved.placed())
     assert not report.collisions and not report.out_of_tolerance
+
+
+def test_yaws_are_spread_over_each_hangings_symmetry_period():
+    """``spread_yaws``: every hanging the block has, ``per`` yaws each, evenly over one period."""
+    import math
+
+    from optimizer.search.hangings import families, spread_yaws, symmetry
+
+    block = load_scene("mini").block
+    pairs = spread_yaws(block, families(block) + ("free",), 4)
+    assert [f for f, _ in pairs] == [f for f in families(block) for _ in range(4)]
+    for f in families(block):
+        yaws = [y for g, y in pairs if g == f]
+        assert yaws[0] == 0.0
+        period = 2 * math.pi / symmetry(block, f)
+        assert np.allclose(np.diff(yaws + [period]), period / 4)

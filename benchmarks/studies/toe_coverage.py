@@ -84,7 +84,7 @@ from geometry.scene import Scene
 from optimizer.search.build import Build, Candidate
 from optimizer.search.cover import BareArea
 from optimizer.search.drop import Shape
-from optimizer.search.hangings import families, hanging_of, symmetry
+from optimizer.search.hangings import families, hanging_of, spread_yaws, symmetry
 from optimizer.search.patterns import lattice_for
 from optimizer.search.physics import settle_in
 from optimizer.search.problem import Problem
@@ -176,11 +176,8 @@ class Greedy:
     def __init__(self, scene: Scene, build: Build, problem: Problem):
         self.scene, self.build, self.problem = scene, build, problem
         block = scene.block
-        self.shapes = []
-        for family in families(block):
-            period = 2 * math.pi / symmetry(block, family)
-            for k in range(YAWS):
-                self.shapes.append((family, Shape.of(block, hanging_of(block, family, k * period / YAWS))))
+        self.shapes = [(family, Shape.of(block, hanging_of(block, family, yaw)))
+                       for family, yaw in spread_yaws(block, families(block), YAWS)]
         self.lowered: dict[tuple[int, int, int], Candidate | None] = {}
         self.rested: dict[tuple[int, int, int], Candidate | None] = {}
         self.tried = 0

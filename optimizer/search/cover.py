@@ -34,7 +34,7 @@ from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, cove
 from geometry.pose import Pose
 
 from .build import Build, Candidate
-from .hangings import symmetry
+from .hangings import spread_yaws
 from .physics import settle_in
 from .problem import TARGET_POINTS, Problem
 from .shapes import ShapeCache
@@ -112,8 +112,7 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
     stats = CoverStats(bare_before_percent=report.bare_share_percent,
                        bare_share_percent=report.bare_share_percent)
     shapes = ShapeCache(block)
-    hung = [shapes.hung(f, k * 2 * math.pi / symmetry(block, f) / YAWS)
-            for f in problem.families if f != "free" for k in range(YAWS)]
+    hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(block, problem.families, YAWS)]
     step, radius = GRID_H * block.height, LOCAL_H * block.height
     offsets = [(dx, dy) for dx in np.arange(-radius, radius + 1e-9, step)
                for dy in np.arange(-radius, radius + 1e-9, step) if math.hypot(dx, dy) <= radius]

@@ -31,6 +31,9 @@ level: one leg down; horizontal: two legs down), whatever its frame.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -89,6 +92,13 @@ def symmetry(block: Block, family: str) -> int:
     if named(block) and family in BASE:
         return 3 if family in ("crown", "level") else 2
     return block.rest_poses[_rest_index(block, family)].symmetry
+
+
+def spread_yaws(block: Block, families: Sequence[str], per: int) -> list[tuple[str, float]]:
+    """(hanging, yaw) pairs: each hanging of ``families`` but ``free`` at ``per`` yaws spread evenly
+    over its symmetry period (a turn by the period gives the same shape)."""
+    return [(f, float(k * (2 * math.pi / symmetry(block, f)) / per))
+            for f in families if f != "free" for k in range(per)]
 
 
 def _rest_index(block: Block, family: str) -> int:

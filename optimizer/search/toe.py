@@ -34,7 +34,7 @@ from geometry.coverage import BARE_FRACTION, distance_to_block
 
 from .build import GROUND, Build, Candidate
 from .drop import Shape
-from .hangings import symmetry
+from .hangings import spread_yaws
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 
@@ -115,18 +115,14 @@ class ToeRows(Strategy):
         toe = np.array([[side * design.bottom_half_width, y, design.z_bottom]])
         limit = REACH * BARE_FRACTION * block.height
         found = []
-        for fam in problem.families:
-            if fam == "free":
+        for fam, yaw in spread_yaws(block, problem.families, self.yaws):
+            if problem.time_left() <= 0:
+                break
+            c = _outermost(problem, build, shapes.hung(fam, yaw), side, y)
+            if c is None:
                 continue
-            period = 2 * np.pi / symmetry(block, fam)
-            for yaw in np.arange(self.yaws) * period / self.yaws:
-                if problem.time_left() <= 0:
-                    break
-                c = _outermost(problem, build, shapes.hung(fam, float(yaw)), side, y)
-                if c is None:
-                    continue
-                dist = float(distance_to_block(toe, block, c.pose)[0])
-                found.append((max(dist, limit), -c.inside, dist, fam, float(yaw)))
+            dist = float(distance_to_block(toe, block, c.pose)[0])
+            found.append((max(dist, limit), -c.inside, dist, fam, yaw))
         if not found:
             return None
         _, _, dist, fam, yaw = min(found)
