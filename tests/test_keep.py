@@ -123,14 +123,14 @@ def test_kept_layout_laid_from_the_pattern_is_continued_along_it(mini, partial):
     from optimizer.api import kept_build
     from optimizer.search.patterns import lattice_for
     from optimizer.search.problem import Problem
-    from optimizer.search.sites import kept_origins, kept_sites, pattern_sites
+    from optimizer.search.sites import kept_origins, laid_sites, pattern_sites
 
     build = kept_build(mini, read_layout(partial).blocks)
     problem = Problem(mini, mini.required_blocks, mini.target_porosity, lattice_for(mini.block, "shake-4t"))
     origins = kept_origins(problem, build)
     assert origins
     sites = pattern_sites(problem, origins[0])
-    taken = kept_sites(problem, build, sites)
+    taken = laid_sites(problem, build, sites)
     # Every kept block of the reference's first pass stands on a site of that origin.
     assert len(taken) == 30
     xy = np.array([(x, y) for _, _, x, y in sites])[sorted(taken)]

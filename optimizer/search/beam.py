@@ -39,7 +39,7 @@ from .drop import Shape
 from .hangings import free, hanging_of
 from .problem import TARGET_POINTS, Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
-from .sites import kept_sites, pattern_sites, rank_origins
+from .sites import laid_sites, pattern_sites, rank_origins
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
@@ -283,7 +283,7 @@ class BeamSearch(Strategy):
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:
         """One beam search from one pattern origin; returns the best build and candidates tried."""
         sites = pattern_sites(problem, origin)
-        beams = [_Beam(start, 0.0, kept_sites(problem, start, sites))]
+        beams = [_Beam(start, 0.0, laid_sites(problem, start, sites))]
         tried = 0
         while any(not b.done for b in beams) and problem.now() < end:
             expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []

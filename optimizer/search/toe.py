@@ -15,7 +15,8 @@ For each toe (the seaward one only behind a wall):
    inside the zone (bisection, to ``RESOLUTION`` of H);
 2. of those whose surface comes within ``REACH`` of H / 2 of the design toe
    line, the one with the most volume inside the design prism is kept; if
-   none does, the nearest;
+   none does, of those within H / 2, the one with the most inside; if none
+   does, the nearest;
 3. the row is laid from one end of the zone to the other, each block as near
    the one before as it lands on the ground, as far out as fits there.
 
@@ -122,7 +123,10 @@ class ToeRows(Strategy):
             if c is None:
                 continue
             dist = float(distance_to_block(toe, block, c.pose)[0])
-            found.append((max(dist, limit), -c.inside, dist, fam, yaw))
+            # Within REACH of H / 2 first, then within H / 2 (the toe's own point covered, the
+            # toe between two blocks of the row not): the most inside; beyond, the nearest.
+            tier = 0 if dist <= limit else 1 if dist <= limit / REACH else 2
+            found.append((tier, dist if tier == 2 else -c.inside, dist, fam, yaw))
         if not found:
             return None
         _, _, dist, fam, yaw = min(found)
