@@ -175,3 +175,44 @@ def test_a_block_on_rubble_is_seated_on_its_site():
         np.testing.assert_allclose(s.pose.position[:2], plain.pose.position[:2])
         assert settle_in(pr, build, s) is s
     assert tipped >= 3, "the rubble must tip most blocks for the test to mean anything"
+
+
+def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
+    """Blocks laid before the pattern that are not kept (the toe rows) take the sites they stand
+    in the way of, as kept ones do: a row block on a site takes it, one off the pattern every
+    site within a bounding radius of it; no site further than that from every block."""
+    from optimizer.search.sites import OFF_PATTERN, SITE_MATCH, laid_sites, pattern_sites
+
+    mini = load_scene("mini")
+    pr = problem(mini)
+    rows = ToeRows(accept=raised_check).run(pr, None, np.random.default_rng(1)).build
+    assert len(rows) > 0 and not rows.kept
+    sites = pattern_sites(pr, (0.0, 0.0))
+    taken = laid_sites(pr, rows, sites)
+    xy = np.array([(x, y) for _, _, x, y in sites])
+    laid = np.array([p.position[:2] for p in rows.poses.values()])
+    near = np.linalg.norm(xy[:, None, :] - laid[None, :, :], axis=2).min(axis=1)
+    reach = OFF_PATTERN * mini.block.bounding_radius
+    assert taken and all(near[i] <= reach + 1e-9 for i in taken)
+    on = SITE_MATCH * min(pr.lattice.w, pr.lattice.p)
+    for p in laid:
+        d = np.linalg.norm(xy - p, axis=1)
+        if (d <= on).any():
+            assert set(np.flatnonzero(d <= on)) & taken
+        else:
+            assert set(np.flatnonzero(d < reach - 1e-6)) <= taken
+    assert laid_sites(pr, Build(mini), sites) == frozenset()
+
+
+def test_toe_rows_take_the_hanging_with_most_inside_among_those_that_reach_the_toe():
+    """On ``mini`` no hanging comes within REACH of H/2 of the toe line; the crown and the
+    horizontal hanging come within H/2 (0.81 and 0.80 m of 0.83), and the rows take the crown,
+    whose block lies more inside the design prism (the nearest, horizontal, cost the count)."""
+    from geometry.coverage import BARE_FRACTION
+    from optimizer.search.toe import REACH
+
+    mini = load_scene("mini")
+    phase = ToeRows(accept=raised_check).run(problem(mini), None, np.random.default_rng(1))
+    half = BARE_FRACTION * mini.block.height
+    assert all(REACH * half < r <= half for r in phase.stats.reach_m), phase.stats
+    assert all(h.startswith("crown") for h in phase.stats.hangings), phase.stats
