@@ -155,13 +155,16 @@ def generality_readme(gr: list[dict[str, str]]) -> str:
             cell("old", scene, "blocks", 0), cell("old", scene, "porosity_percent", 1),
             cell("new", scene, "blocks", 0), cell("new", scene, "porosity_percent", 1),
             f"{sum(r['valid_ok'] == 'True' for r in new)} of {len(every)}",
-            cell("new", scene, "bare_share_percent", 1), cell("new", scene, "seconds", 0)
-            + (f" ({float(new[0]['limit_s']):.0f})" if new else ""),
+            cell("new", scene, "bare_share_percent", 1),
+            cell("new", scene, "max_bare_m", 2)
+            + (f" ({float(new[0]['block_height_m']):.2f})" if new else ""),
+            cell("new", scene, "seconds", 0) + (f" ({float(new[0]['limit_s']):.0f})" if new else ""),
             f"{sum(_all_but_coverage(r) for r in every)} of {len(every)}",
             f"{sum(r['ok'] == 'True' for r in every)} of {len(every)}",
         ])
     columns = ("<scene | required | old: blocks | old: porosity % | new: blocks | new: porosity % | "
-               "new: valid | new: bare % | new: took s (limit) | new: all but coverage | new: all items")
+               "new: valid | new: bare % | new: largest bare m (H) | new: took s (limit) | "
+               "new: all but coverage | new: all items")
     if not any(r["method"] == "old" for r in gr):  # no old runs: no old columns
         columns = columns.replace("old: blocks | old: porosity % | ", "").replace("new: ", "")
         cells = [c[:2] + c[4:] for c in cells]

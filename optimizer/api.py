@@ -538,7 +538,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     left before the deadline. The rows (:class:`ToeRows`) come first; then
     the same strategies, the beam ranking its pattern origins around the
     rows and leaving out the sites they are in the way of
-    (:func:`optimizer.search.sites.laid_sites`), and the pocket fill taking
+    (:meth:`BeamSearch.around_laid`), and the pocket fill taking
     the pockets beside them. Searched from the chosen attempt's origin
     without the fill (until 2026-11-26), the attempt fell short of the count
     on ``mini`` (55-67 of 75). Appends the attempt to ``tried`` and returns
@@ -558,8 +558,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, None
     if clock() + best.seconds > problem.deadline:
         return chosen, f"no time was left for an attempt with toe rows first (about {best.seconds:.0f} s)"
-    tried.append(_attempt(problem, [ToeRows(accept=raised_check), *strategies], scene, (), rng, settle_layout,
-                          end, len(tried) + 1, all_or_nothing=True))
+    again = [ToeRows(accept=raised_check)] + [s.around_laid() if isinstance(s, BeamSearch) else s
+                                               for s in strategies]
+    tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1,
+                          all_or_nothing=True))
     new = tried[-1]
     what = "an attempt with toe rows first"
     if (new.searched or 0) >= problem.required > len(new.build):

@@ -178,9 +178,10 @@ def test_a_block_on_rubble_is_seated_on_its_site():
 
 
 def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
-    """Blocks laid before the pattern that are not kept (the toe rows) take the sites they stand
-    in the way of, as kept ones do: a row block on a site takes it, one off the pattern every
-    site within a bounding radius of it; no site further than that from every block."""
+    """Blocks laid before the pattern that are not kept (the toe rows), when named
+    (``BeamSearch.around_laid``), take the sites they stand in the way of, as kept ones do: a
+    row block on a site takes it, one off the pattern every site within a bounding radius of
+    it; no site further than that from every block."""
     from optimizer.search.sites import OFF_PATTERN, SITE_MATCH, laid_sites, pattern_sites
 
     mini = load_scene("mini")
@@ -188,7 +189,9 @@ def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
     rows = ToeRows(accept=raised_check).run(pr, None, np.random.default_rng(1)).build
     assert len(rows) > 0 and not rows.kept
     sites = pattern_sites(pr, (0.0, 0.0))
-    taken = laid_sites(pr, rows, sites)
+    # By default only kept blocks count (a settle's repair lays its holes again on their sites).
+    assert laid_sites(pr, rows, sites) == frozenset()
+    taken = laid_sites(pr, rows, sites, list(rows.poses))
     xy = np.array([(x, y) for _, _, x, y in sites])
     laid = np.array([p.position[:2] for p in rows.poses.values()])
     near = np.linalg.norm(xy[:, None, :] - laid[None, :, :], axis=2).min(axis=1)
@@ -201,7 +204,7 @@ def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
             assert set(np.flatnonzero(d <= on)) & taken
         else:
             assert set(np.flatnonzero(d < reach - 1e-6)) <= taken
-    assert laid_sites(pr, Build(mini), sites) == frozenset()
+    assert laid_sites(pr, Build(mini), sites, []) == frozenset()
 
 
 def test_toe_rows_take_the_hanging_with_most_inside_among_those_that_reach_the_toe():

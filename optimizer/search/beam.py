@@ -181,11 +181,20 @@ class BeamSearch(Strategy):
         self.restarts = restarts
         self.share = share
         self.judge = judge
+        self.around_all = False
 
     def at(self, origin: tuple[float, float]) -> BeamSearch:
         """The same search, from one pattern origin only."""
         other = copy.copy(self)
         other.origin = origin
+        return other
+
+    def around_laid(self) -> BeamSearch:
+        """The same search, leaving out the pattern sites that any block of its start is in the
+        way of, not only kept ones (:func:`optimizer.search.sites.laid_sites`): the pattern laid
+        around blocks placed before it, such as the toe rows."""
+        other = copy.copy(self)
+        other.around_all = True
         return other
 
     # --- candidates ------------------------------------------------------------
@@ -253,7 +262,8 @@ class BeamSearch(Strategy):
             n = max(4, round(self.scan_origins * min(1.0, 100 / max(problem.required, 1))
                              * min(1.0, budget / RANK_SECONDS)))
             cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
-            origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n)
+            origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n,
+                                   self._laid(start))
         best: tuple | None = None
         tried = 0
         runs = 0
@@ -279,11 +289,15 @@ class BeamSearch(Strategy):
         _, result, origin = best
         return Phase(result, BeamStats(tried, runs, origin), origin)
 
+    def _laid(self, start: Build) -> list[int]:
+        """The blocks of ``start`` whose sites the pattern leaves out: kept ones, or all."""
+        return list(start.poses) if self.around_all else list(start.kept)
+
     def _search(self, problem: Problem, start: Build, origin: tuple[float, float], shapes: ShapeCache,
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:
         """One beam search from one pattern origin; returns the best build and candidates tried."""
         sites = pattern_sites(problem, origin)
-        beams = [_Beam(start, 0.0, laid_sites(problem, start, sites))]
+        beams = [_Beam(start, 0.0, laid_sites(problem, start, sites, self._laid(start)))]
         tried = 0
         while any(not b.done for b in beams) and problem.now() < end:
             expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []

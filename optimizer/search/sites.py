@@ -8,6 +8,8 @@ ranked first by a quick pass of the pattern alone (:func:`rank_origins`).
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -17,7 +19,8 @@ from .shapes import ShapeCache
 
 
 def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator, start: Build,
-                 probes: int, stop: float, scans: int = 0, n: int = 16) -> list[tuple[float, float]]:
+                 probes: int, stop: float, scans: int = 0, n: int = 16,
+                 laid: Collection[int] | None = None) -> list[tuple[float, float]]:
     """Pattern origins, best first: by the volume their sites alone place in the design prism.
 
     First ``probes`` origins, (0, 0) and seeded random ones over one lattice cell;
@@ -31,9 +34,11 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     ``tetrapod`` it ranges from 60 to 81 blocks, and the steps that reach 81 are
     about 0.3 m wide in x and 0.16 m in y, against scan spacings of 0.23 m and
     0.13 m at ``n = 16``: a scan cannot step over them, where random probes often
-    miss them. Trials stop at ``stop`` (``problem.now()``). A trial the deadline
-    cuts short is dropped, unless it is the only one: then the origin it drew is
-    all there is to rank (a budget too short for one pass over a long scene).
+    miss them. The sites that the ``laid`` blocks of ``start`` are in the way of
+    are left out (:func:`laid_sites`; kept ones by default). Trials stop at
+    ``stop`` (``problem.now()``). A trial the deadline cuts short is dropped,
+    unless it is the only one: then the origin it drew is all there is to rank
+    (a budget too short for one pass over a long scene).
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
@@ -42,7 +47,7 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     scored: list[tuple[float, int, tuple[float, float]]] = []
 
     def trial(origin: tuple[float, float]) -> None:
-        volume = pattern_pass(problem, shapes, start, origin, stop).inside_volume
+        volume = pattern_pass(problem, shapes, start, origin, stop, laid).inside_volume
         if not scored or problem.now() <= stop:
             scored.append((-volume, len(scored), origin))
 
@@ -65,13 +70,13 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
 
 
 def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple[float, float],
-                 stop: float = float("inf")) -> Build:
+                 stop: float = float("inf"), laid: Collection[int] | None = None) -> Build:
     """``start`` with the pattern's sites from ``origin`` lowered in crane order, as drawn,
     up to the required count or until ``stop`` (``problem.now()``): the quick pass
     that ranks an origin."""
     b = start.copy()
     sites = pattern_sites(problem, origin)
-    taken = laid_sites(problem, start, sites)
+    taken = laid_sites(problem, start, sites, laid)
     for i, (fam, yaw, x, y) in enumerate(sites):
         if len(b) >= problem.required or problem.now() > stop:
             break
@@ -152,27 +157,32 @@ def _under(problem: Problem, origin: tuple[float, float], kept: np.ndarray) -> i
     return int((d <= SITE_MATCH * min(problem.lattice.w, problem.lattice.p)).sum())
 
 
-def laid_sites(problem: Problem, build: Build, sites: list[tuple[str, float, float, float]]
-               ) -> frozenset[int]:
-    """Indices of ``sites`` that the blocks already laid stand on or are in the way of.
+def laid_sites(problem: Problem, build: Build, sites: list[tuple[str, float, float, float]],
+               keys: Collection[int] | None = None) -> frozenset[int]:
+    """Indices of ``sites`` that blocks already laid stand on or are in the way of.
 
-    The blocks the search starts from: a kept layout's (``Build.keep``), or the
-    rows along the toes laid first (``optimizer.search.toe``). Each, in crane
-    order, takes the first free site within ``SITE_MATCH`` of it across. One
-    off the pattern (a trainee's, a toe row's) takes every site within
-    ``OFF_PATTERN`` bounding radii of it: a block lowered there would land on
-    its shoulder, and the pockets around it are left to the fill drops, which
-    go where blocks settle. Offered anyway, such sites were jittered into the
-    pockets and jammed the ones after them: around ``mini``'s crown toe rows
-    (seeds 1-3) the beam and the fill laid 72, 75 and 71 of 75 blocks with them
-    offered, 75 on each seed without.
+    The blocks are ``keys`` of ``build``: by default its kept ones
+    (``Build.keep``); the attempt with toe rows first passes every block of
+    its start, the rows (``BeamSearch.around_laid``). Each, in crane order,
+    takes the first free site within ``SITE_MATCH`` of it across. One off the
+    pattern (a trainee's, a toe row's) takes every site within ``OFF_PATTERN``
+    bounding radii of it: a block lowered there would land on its shoulder,
+    and the pockets around it are left to the fill drops, which go where
+    blocks settle. Offered anyway, the sites beside the toe rows were
+    jittered into the pockets and jammed the ones after them: around
+    ``mini``'s crown toe rows (seeds 1-3) the beam and the fill laid 72, 75
+    and 71 of 75 blocks with them offered, 75 on each seed without. A
+    settle's repair (``physics.confirm``) leaves its blocks out of this: they
+    are the pattern's own, and the sites of the blocks it took out are to be
+    laid again.
     """
-    if not build.poses or not sites:
+    keys = list(build.kept if keys is None else keys)
+    if not keys or not sites:
         return frozenset()
     tree = cKDTree(np.array([(x, y) for _, _, x, y in sites]))
     reach = SITE_MATCH * min(problem.lattice.w, problem.lattice.p)
     taken: set[int] = set()
-    for k in build.poses:
+    for k in keys:
         xy = build.poses[k].position[:2]
         free = [i for i in sorted(tree.query_ball_point(xy, reach)) if i not in taken]
         if free:
