@@ -534,8 +534,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     """One more attempt, with rows along the toes first, where the chosen one leaves the mound bare.
 
     Only when the chosen attempt reaches its count and porosity and misses
-    a coverage aim (``CoverageReport.aims_met``), and the time it took is
-    left before the deadline. The rows (:class:`ToeRows`) come first; then
+    a coverage aim (``CoverageReport.aims_met``), the strategies include the
+    beam search, and the time the chosen attempt took is left before the
+    deadline. The rows (:class:`ToeRows`) come first; then
     the same strategies, the beam ranking its pattern origins around the
     rows and leaving out the sites they are in the way of
     (:meth:`BeamSearch.around_laid`), and the pocket fill taking
@@ -550,6 +551,8 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     best = tried[chosen]
     if not best.on_target(problem):
         return chosen, "toe rows are tried only once a layout reaches its count and porosity"
+    if not any(isinstance(s, BeamSearch) for s in strategies):
+        return chosen, "toe rows are tried only where the beam search lays the pattern around them"
     scene = problem.scene
     if clock() + coverage_reserve(scene) > problem.deadline:
         return chosen, "no time was left for an attempt with toe rows first"

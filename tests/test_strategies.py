@@ -219,3 +219,38 @@ def test_toe_rows_take_the_hanging_with_most_inside_among_those_that_reach_the_t
     half = BARE_FRACTION * mini.block.height
     assert all(REACH * half < r <= half for r in phase.stats.reach_m), phase.stats
     assert all(h.startswith("crown") for h in phase.stats.hangings), phase.stats
+
+
+def test_only_the_beam_around_laid_blocks_leaves_out_their_sites(tiny):
+    """The attempt with toe rows asks its beam to leave out the sites of every block laid
+    before it; any other beam (the first attempt's, a settle's repair) only those of kept
+    blocks, so a repair lays the blocks it took out again on their own sites."""
+    from optimizer.api import kept_build
+
+    rows = ToeRows(accept=raised_check).run(problem(tiny), None, np.random.default_rng(1)).build
+    assert len(rows) > 0
+    plain = BeamSearch(restarts=1, origins=3)
+    around = plain.around_laid()
+    assert around is not plain and not plain.around_all
+    assert around._laid(rows) == list(rows.order) and plain._laid(rows) == []
+    kept = kept_build(tiny, rows.layout({}).blocks[:2])
+    assert plain._laid(kept) == list(kept.kept) and len(plain._laid(kept)) == 2
+
+
+def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
+    """``covered_attempt`` lays the rows first and gives the beam that follows them the
+    blocks laid before it (``BeamSearch.around_laid``)."""
+    import optimizer.api as api
+
+    seen = []
+    real = api._attempt
+
+    def spy(problem_, strategies, *args, **kwargs):
+        seen.append([(type(s).__name__, getattr(s, "around_all", None)) for s in strategies])
+        return real(problem_, strategies, *args, **kwargs)
+
+    monkeypatch.setattr(api, "_attempt", spy)
+    api.optimize(tiny, seed=1, time_limit=120,
+                 strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
+    assert seen[0] == [("BeamSearch", False), ("Annealing", None)]
+    assert seen[-1] == [("ToeRows", None), ("BeamSearch", True), ("Annealing", None)]

@@ -183,12 +183,6 @@ class BeamSearch(Strategy):
         self.judge = judge
         self.around_all = False
 
-    def at(self, origin: tuple[float, float]) -> BeamSearch:
-        """The same search, from one pattern origin only."""
-        other = copy.copy(self)
-        other.origin = origin
-        return other
-
     def around_laid(self) -> BeamSearch:
         """The same search, leaving out the pattern sites that any block of its start is in the
         way of, not only kept ones (:func:`optimizer.search.sites.laid_sites`): the pattern laid
@@ -291,7 +285,7 @@ class BeamSearch(Strategy):
 
     def _laid(self, start: Build) -> list[int]:
         """The blocks of ``start`` whose sites the pattern leaves out: kept ones, or all."""
-        return list(start.poses) if self.around_all else list(start.kept)
+        return list(start.order) if self.around_all else list(start.kept)
 
     def _search(self, problem: Problem, start: Build, origin: tuple[float, float], shapes: ShapeCache,
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:

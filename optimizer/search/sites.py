@@ -73,7 +73,8 @@ def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tup
                  stop: float = float("inf"), laid: Collection[int] | None = None) -> Build:
     """``start`` with the pattern's sites from ``origin`` lowered in crane order, as drawn,
     up to the required count or until ``stop`` (``problem.now()``): the quick pass
-    that ranks an origin."""
+    that ranks an origin. The sites the ``laid`` blocks of ``start`` are in the way
+    of are skipped (:func:`laid_sites`; kept ones by default)."""
     b = start.copy()
     sites = pattern_sites(problem, origin)
     taken = laid_sites(problem, start, sites, laid)

@@ -114,7 +114,8 @@ class ToeRows(Strategy):
         block, design = scene.block, scene.design
         y = 0.5 * (design.y_start + design.y_end)
         toe = np.array([[side * design.bottom_half_width, y, design.z_bottom]])
-        limit = REACH * BARE_FRACTION * block.height
+        half = BARE_FRACTION * block.height
+        limit = REACH * half
         found = []
         for fam, yaw in spread_yaws(block, problem.families, self.yaws):
             if problem.time_left() <= 0:
@@ -125,7 +126,7 @@ class ToeRows(Strategy):
             dist = float(distance_to_block(toe, block, c.pose)[0])
             # Within REACH of H / 2 first, then within H / 2 (the toe's own point covered, the
             # toe between two blocks of the row not): the most inside; beyond, the nearest.
-            tier = 0 if dist <= limit else 1 if dist <= limit / REACH else 2
+            tier = 0 if dist <= limit else 1 if dist <= half else 2
             found.append((tier, dist if tier == 2 else -c.inside, dist, fam, yaw))
         if not found:
             return None
