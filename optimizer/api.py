@@ -443,16 +443,14 @@ ATTEMPTS = 3
 
 @dataclass
 class _Attempt:
-    """One run of the strategies and the confirming settle: its layout, the pattern origin its
-    beam searched from, the seconds it took, and its coverage once measured (only where the
-    coverage attempt has to judge it)."""
+    """One run of the strategies and the confirming settle: its layout, the seconds it took, and
+    its coverage once measured (only where the coverage attempt has to judge it)."""
 
     build: Build
     phases: list[dict[str, Any]]
     gap: dict[str, Any]
     settle: dict[str, Any]
     stable: bool | None
-    origin: tuple[float, float] | None = None
     seconds: float = 0.0
     coverage: CoverageReport | None = None
     searched: int | None = None  # blocks before the confirming settle
@@ -499,7 +497,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     build = phase.build if phase is not None else Build(scene)
     origin = phase.origin if phase else None
     if not settle_layout or (all_or_nothing and len(build) < problem.required):
-        return _Attempt(build, phases, gap, {}, None, origin, clock() - start)
+        return _Attempt(build, phases, gap, {}, None, clock() - start)
     searched = len(build)
     build, confirmation = confirm(problem, build, rng, origin, end)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
@@ -525,7 +523,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
             break
         build, confirmation = again, check
         searched = max(searched, len(more))
-    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, origin, clock() - start,
+    return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, clock() - start,
                     searched=searched)
 
 
