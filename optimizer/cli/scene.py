@@ -18,9 +18,18 @@ def scene() -> None:
 
 @scene.command("info")
 @click.argument("scene_name", metavar="SCENE")
+@click.option("--floor", is_flag=True,
+              help="Also measure what the tolerance zone keeps out of any block's reach "
+                   "(coverage_floor; a few seconds).")
 @json_option
-def scene_info(scene_name: str, as_json: bool) -> None:
-    """A scene's measures."""
+def scene_info(scene_name: str, floor: bool, as_json: bool) -> None:
+    """A scene's measures.
+
+    With --floor, the coverage floor: the share of the design slopes and
+    crest that lies further than H/2 from any block that fits inside the
+    tolerance zone, in any of the orientations tried, and the largest such
+    distance. No valid layout can be less bare.
+    """
     from geometry.scene import load_scene
 
     s = load_scene(scene_name)
@@ -43,6 +52,21 @@ def scene_info(scene_name: str, as_json: bool) -> None:
     human = (f"{s.name}: {s.block_type}, design {s.design_volume:.2f} m3, tolerance "
              f"{s.tolerance.volume:.2f} m3, {s.required_blocks} blocks required for "
              f"{s.target_porosity:g}% porosity")
+    if floor:
+        from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H
+        from geometry.reach import coverage_floor
+
+        f = coverage_floor(s)
+        payload["coverage_floor"] = f.to_dict()
+        h = s.block.height
+        verdict = ("so no layout of this block can meet the coverage aims"
+                   if f.bare_share_percent > AIM_BARE_PERCENT or f.max_bare_m > AIM_MAX_BARE_H * h
+                   else "which does not rule the coverage aims out")
+        human += (f"\ncoverage floor: {f.bare_share_percent:.1f}% of the slopes and crest lies over "
+                  f"H/2 = {h / 2:.2f} m from any block inside the tolerance zone, and the point "
+                  f"({f.worst_point[0]:.2f}, z {f.worst_point[1]:.2f}) {f.max_bare_m:.2f} m from one "
+                  f"(aims: at most {AIM_BARE_PERCENT:g}%, within H = {h:.2f} m), {verdict}, "
+                  f"to the {f.orientations} orientations tried")
     emit(payload, as_json, human)
 
 
