@@ -253,7 +253,8 @@ class OptimizeResult:
         if not misses:
             return ""
         return "\nthe mound is not covered: " + "; ".join(misses) + (
-            f"; {self.cover_attempt}" if self.cover_attempt else "")
+            f"; {self.cover_attempt}" if self.cover_attempt else "") + (
+            " (how much no block inside the tolerance zone can reach: shoha scene info SCENE --floor)")
 
     def to_dict(self) -> dict[str, Any]:
         return {
