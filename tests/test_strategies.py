@@ -221,6 +221,22 @@ def test_toe_rows_take_the_hanging_with_most_inside_among_those_that_reach_the_t
     assert all(h.startswith("crown") for h in phase.stats.hangings), phase.stats
 
 
+def test_toe_rows_stand_on_the_outer_line_all_along():
+    """Each block of a row is the outermost within half a block along the row: lowered at the
+    first place beside the block before, it lands further in, where it clears that block, and
+    then stops short of the toe (on ``mini`` 0.3-0.4 m in, a block beyond H/2 of the toe line)."""
+    from optimizer.search.toe import ROW_STEP
+
+    mini = load_scene("mini")
+    phase = ToeRows(accept=raised_check).run(problem(mini), None, np.random.default_rng(1))
+    x = np.array([p.pose.position[0] for p in phase.build.layout({}).blocks])
+    assert phase.stats.placed == len(x) >= 12
+    for side in (1.0, -1.0):
+        row = side * x[side * x > 0]
+        assert len(row) >= 6
+        assert row.max() - row.min() <= 2 * ROW_STEP * mini.block.height, row
+
+
 def test_only_the_beam_around_laid_blocks_leaves_out_their_sites(tiny):
     """The attempt with toe rows asks its beam to leave out the sites of every block laid
     before it; any other beam (the first attempt's, a settle's repair) only those of kept

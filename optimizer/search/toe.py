@@ -17,8 +17,13 @@ For each toe (the seaward one only behind a wall):
    line, the one with the most volume inside the design prism is kept; if
    none does, of those within H / 2, the one with the most inside; if none
    does, the nearest;
-3. the row is laid from one end of the zone to the other, each block as near
-   the one before as it lands on the ground, as far out as fits there.
+3. the row is laid from one end of the zone to the other: past each block,
+   the next is lowered every ``ROW_STEP`` of H along the row over half a
+   block, each as far out as it rests on the ground inside the zone, and the
+   outermost is laid. (Until 2026-11-26 the first place on the ground was
+   laid: beside the block before it lands further in, where it clears that
+   block, and the rows of ``mini`` stood 0.3-0.4 m in from the outer line,
+   beyond H/2 of the toe line.)
 
 Nothing in it is tuned to a scene: ``REACH`` leaves room for the toe between
 two blocks of a row, and the steps are shares of the block height.
@@ -142,13 +147,21 @@ class ToeRows(Strategy):
         h = problem.scene.block.height
         shape = shapes.hung(fam, yaw)
         width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
+        step = ROW_STEP * h
         y, placed = zone.y_start, 0
         while y <= zone.y_end and len(build) < problem.required and problem.time_left() > 0:
-            c = _outermost(problem, build, shape, side, y)
+            # The outermost place on the ground within half a block along the row: the first
+            # place beside the block before is often further in, where it clears that block.
+            c = None
+            for at in np.arange(y, min(y + 0.5 * width, zone.y_end) + 0.5 * step, step):
+                here = _outermost(problem, build, shape, side, float(at))
+                if here is not None and GROUND in here.support and (
+                        c is None or side * here.pose.position[0] > side * c.pose.position[0] + step):
+                    c = here
             if c is not None and c.support == (GROUND,):
                 c = self.accept(problem, build, c)
             if c is None or GROUND not in c.support:
-                y += ROW_STEP * h
+                y += 0.5 * width if c is None else step
                 continue
             build.place(c)
             placed += 1
