@@ -500,7 +500,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     if not settle_layout or (all_or_nothing and len(build) < problem.required):
         return _Attempt(build, phases, gap, {}, None, clock() - start)
     searched = len(build)
-    build, confirmation = confirm(problem, build, rng, origin, end)
+    build, confirmation = confirm(problem, build, rng, origin, end, whole=all_or_nothing)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
     # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
     # come to rest lower, and what did not stand is out.
