@@ -154,6 +154,8 @@ class ToeRows(Strategy):
             # place beside the block before is often further in, where it clears that block.
             c = None
             for at in np.arange(y, min(y + 0.5 * width, zone.y_end) + 0.5 * step, step):
+                if problem.time_left() <= 0:
+                    break
                 here = _outermost(problem, build, shape, side, float(at))
                 if here is not None and GROUND in here.support and (
                         c is None or side * here.pose.position[0] > side * c.pose.position[0] + step):
