@@ -39,7 +39,7 @@ from scipy.optimize import minimize
 from scipy.spatial import ConvexHull, QhullError
 from scipy.spatial.transform import Rotation
 
-from .coverage import BARE_FRACTION, surface_samples
+from .coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION, surface_samples
 from .scene import Scene
 
 #: Yaws per rest pose, over a full turn.
@@ -75,6 +75,10 @@ class CoverageFloor:
     worst_point: tuple[float, float]
     toe_m: float
     orientations: int
+
+    def rules_out(self, block_height: float) -> bool:
+        """Whether no layout can meet the coverage aims (``AIM_BARE_PERCENT``, ``AIM_MAX_BARE_H``)."""
+        return self.bare_share_percent > AIM_BARE_PERCENT or self.max_bare_m > AIM_MAX_BARE_H * block_height
 
     def to_dict(self) -> dict[str, Any]:
         return {"bare_share_percent": self.bare_share_percent, "max_bare_m": self.max_bare_m,
@@ -178,7 +182,12 @@ def least_distances(scene: Scene, random: int = RANDOM, yaws: int = YAWS, refine
 def coverage_floor(scene: Scene, random: int = RANDOM, yaws: int = YAWS, refine: int = REFINE,
                    seed: int = 0) -> CoverageFloor:
     """The share of the slopes and crest, and the largest distance, that no valid layout can cover."""
-    points, weights, least, tried = least_distances(scene, random, yaws, refine, seed)
+    return floor_of(scene, *least_distances(scene, random, yaws, refine, seed))
+
+
+def floor_of(scene: Scene, points: np.ndarray, weights: np.ndarray, least: np.ndarray,
+             tried: int) -> CoverageFloor:
+    """The floor that the least distances of :func:`least_distances` give."""
     bare = least > BARE_FRACTION * scene.block.height
     worst = int(np.argmax(least))
     toe = int(np.argmin(np.hypot(points[:, 0] - scene.design.bottom_half_width,

@@ -36,15 +36,13 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from common import BENCH, Run  # noqa: E402
 from generality import HELD_OUT_DIR, SCENES, scene_arg, write_turned_mesh  # noqa: E402
 
-from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION  # noqa: E402
-from geometry.reach import least_distances  # noqa: E402
+from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H  # noqa: E402
+from geometry.reach import floor_of, least_distances  # noqa: E402
 from geometry.scene import load_scene  # noqa: E402
 
 YAWS = 180
@@ -68,17 +66,16 @@ def main() -> None:
             t0 = time.perf_counter()
             points, weights, least, tried = least_distances(scene, random, YAWS, refine)
             floors[kind] = least
-            bare = least > BARE_FRACTION * h
-            worst = int(np.argmax(least))
+            f = floor_of(scene, points, weights, least, tried)
             rows.append({
                 "scene": name, "held_out": name in held_out, "block": scene.block.name,
                 "orientations": kind, "tried": tried, "block_height_m": round(h, 4),
-                "floor_bare_share_percent": round(100 * float(weights[bare].sum() / weights.sum()), 2),
+                "floor_bare_share_percent": round(f.bare_share_percent, 2),
                 "aim_bare_share_percent": AIM_BARE_PERCENT,
-                "floor_max_bare_m": round(float(least[worst]), 3),
+                "floor_max_bare_m": round(f.max_bare_m, 3),
                 "aim_max_bare_m": round(AIM_MAX_BARE_H * h, 3),
-                "worst_x_m": round(float(points[worst, 0]), 3),
-                "worst_z_m": round(float(points[worst, 1]), 3),
+                "worst_x_m": round(f.worst_point[0], 3),
+                "worst_z_m": round(f.worst_point[1], 3),
                 "seconds": round(time.perf_counter() - t0, 1),
             })
             print(rows[-1], flush=True)

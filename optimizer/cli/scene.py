@@ -53,14 +53,13 @@ def scene_info(scene_name: str, floor: bool, as_json: bool) -> None:
              f"{s.tolerance.volume:.2f} m3, {s.required_blocks} blocks required for "
              f"{s.target_porosity:g}% porosity")
     if floor:
-        from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H
+        from geometry.coverage import AIM_BARE_PERCENT
         from geometry.reach import coverage_floor
 
         f = coverage_floor(s)
         payload["coverage_floor"] = f.to_dict()
         h = s.block.height
-        verdict = ("so no layout of this block can meet the coverage aims"
-                   if f.bare_share_percent > AIM_BARE_PERCENT or f.max_bare_m > AIM_MAX_BARE_H * h
+        verdict = ("so no layout of this block can meet the coverage aims" if f.rules_out(h)
                    else "which does not rule the coverage aims out")
         human += (f"\ncoverage floor: {f.bare_share_percent:.1f}% of the slopes and crest lies over "
                   f"H/2 = {h / 2:.2f} m from any block inside the tolerance zone, and the point "

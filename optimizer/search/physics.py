@@ -283,10 +283,9 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
         for k in sorted(failed, key=build.order.index, reverse=True):
             smaller.remove(k)
         repaired += len(failed)
-        left = (end if end is not None else problem.deadline) - problem.now() - cost
         if rounds <= ROUNDS and left > 2 * cost + 1.0:
             # The repair must leave room for a settle: it is asked with a deadline of its own.
-            repair = replace(problem, deadline=problem.now() + left)
+            repair = replace(problem, deadline=(end if end is not None else problem.deadline) - cost)
             beam = BeamSearch(width=2, accept=local_check, origin=origin, restarts=1, share=0.5)
             build = beam.run(repair, Phase(smaller, origin=origin), rng).build
         else:
