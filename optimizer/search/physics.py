@@ -227,20 +227,22 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
     ``problem.now()`` value; a repair gets at most half the time left
     after reserving one settle), the beam search places blocks again under
     the local check; otherwise the layout stays short of them. The rounds
-    end when the settle verdict is stable, so what is returned always
-    stands, even if it is smaller (a settled empty layout is trivially
-    stable), unless the build has kept blocks (``Build.keep``) that fail:
-    those stay, and the verdict says so.
+    end when the settle verdict is stable, so what is returned stands, even
+    if it is smaller (a settled empty layout is trivially stable), with two
+    exceptions, where the verdict says it fails: the build has kept blocks
+    (``Build.keep``) that fail (they stay, and the caller reports them); or
+    not even one more settle of what is left fits before ``end``. The time
+    limit is a promise: a settle past ``end`` once took ``full`` 7 s past its
+    limit (30 s with a second run beside it).
 
     With ``whole`` (a caller that keeps the layout only if it stands with
     every block), a failed settle with no time left for a repair ends the
-    rounds there, with the failed verdict, instead of settling what is left
-    past ``end``: on ``full`` that last settle took the coverage attempt 7 s
-    past the time limit (30 s with a second run beside it).
+    rounds there too, even if a settle of what is left would fit.
 
     Returns the build and its :class:`Confirmation`.
     """
     start = problem.now()
+    limit = end if end is not None else problem.deadline
     repaired = rounds = adopted = 0
     while True:
         t = problem.now()
@@ -252,7 +254,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             # A layout that stands is written where it stands: each block settled onto what
             # carries it, touching it, rather than at its first contact on the way down
             # (the interlock count sees the difference). Only if that is valid and stands.
-            left = (end if end is not None else problem.deadline) - problem.now()
+            left = limit - problem.now()
             if left > 2 * cost:
                 after, again = settled_layout(problem, build, result, rng)
                 if len(after) == len(build) and again.stable:
@@ -264,7 +266,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
         failed = carried_closure(build, set(result.unstable_ids)) - set(build.kept)
         if not failed:
             break
-        left = (end if end is not None else problem.deadline) - problem.now() - cost
+        left = limit - problem.now() - cost
         if adopted < ROUNDS and left > 3 * cost:
             # First the layout where the settle left it: blocks that crept or slid have come
             # to rest, and the layout often stands so, with every block in it.
@@ -275,21 +277,25 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             failed = carried_closure(build, set(result.unstable_ids)) - set(build.kept)
             if not failed:
                 break
-        left = (end if end is not None else problem.deadline) - problem.now() - cost
-        if whole and not (rounds < ROUNDS and left > 2 * cost + 1.0):
-            break  # no repair fits, and what would be left is not kept: the layout as it failed
+        left = limit - problem.now() - cost
+        repair = rounds < ROUNDS and left > 2 * cost + 1.0
+        if not repair and (whole or left < 0):
+            # No repair fits. A layout kept only whole is not kept smaller, and with no time for
+            # one more settle what is left cannot be confirmed: the rounds end with the failed
+            # verdict, within the time.
+            break
         rounds += 1
         smaller = build.copy()
         for k in sorted(failed, key=build.order.index, reverse=True):
             smaller.remove(k)
         repaired += len(failed)
-        if rounds <= ROUNDS and left > 2 * cost + 1.0:
+        if repair:
             # The repair must leave room for a settle: it is asked with a deadline of its own.
-            repair = replace(problem, deadline=(end if end is not None else problem.deadline) - cost)
+            repair_problem = replace(problem, deadline=limit - cost)
             beam = BeamSearch(width=2, accept=local_check, origin=origin, restarts=1, share=0.5)
-            build = beam.run(repair, Phase(smaller, origin=origin), rng).build
+            build = beam.run(repair_problem, Phase(smaller, origin=origin), rng).build
         else:
-            build = smaller  # out of rounds or time: keep what stands
+            build = smaller  # out of rounds: keep what stands
     rank = {k: i for i, k in enumerate(build.order)}
     return build, Confirmation(
         adopted=adopted,
