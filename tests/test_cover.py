@@ -98,3 +98,23 @@ def test_yaws_are_spread_over_each_hangings_symmetry_period():
         assert yaws[0] == 0.0
         period = 2 * math.pi / symmetry(block, f)
         assert np.allclose(np.diff(yaws + [period]), period / 4)
+
+
+def test_a_block_is_tried_where_its_grid_reaches_bare_area(monkeypatch):
+    """The blocks a move tries are those with the most bare area within reach of where the grid
+    can lower them (a block's reach plus the grid's radius), not only of where they stand. On a
+    ``wall-shake`` layout (tests/data/README.md) the crest beside the wall is bare, out of reach
+    of where the free blocks of the top stand: ranked by where they stood, the toe row was tried
+    (a little bare ground within its reach) and nothing moved."""
+    scene = load_scene(ROOT / "benchmarks" / "scenes" / "wall-shake.toml")
+    build = Build(scene)
+    for p in read_layout(ROOT / "tests" / "data" / "wall-shake-seed1.json").blocks:
+        build.place_at(p.pose)
+    before = coverage(scene, build.placed())
+    monkeypatch.setattr(cover, "MOVES", 1)
+    moved, after, stats = cover.cover_moves(problem(scene), build, before)
+    assert stats.tried > 0 and stats.moved == 1
+    assert after.bare_share_percent < before.bare_share_percent
+    assert abs(moved.porosity.percent - scene.target_porosity) <= 1.0
+    report = check_layout(scene, moved.placed())
+    assert not report.collisions and not report.out_of_tolerance

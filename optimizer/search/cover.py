@@ -41,7 +41,7 @@ from .shapes import ShapeCache
 
 #: Moves at most.
 MOVES = 12
-#: Blocks tried for each move: the free ones with the most bare area within their reach.
+#: Blocks tried for each move: the free ones with the most bare area within reach of their grid.
 BLOCKS_TRIED = 4
 #: Candidates per block let go (the ones that cover the most bare area by the bound).
 SETTLE_TOP = 6
@@ -121,7 +121,10 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
             break
         bare = BareArea(report, block)
         free = build.free_keys()
-        weight = {k: bare.near(build.poses[k].position, bare.reach) for k in free}
+        # Ranked by the bare area within reach of anywhere the grid can lower them, not only of
+        # where they stand: on ``wall-shake`` the crest beside the wall was out of the top row's
+        # own reach, so the toe row was tried, and nothing moved.
+        weight = {k: bare.near(build.poses[k].position, bare.reach + radius) for k in free}
         tried = sorted((k for k in free if weight[k] > 0), key=lambda k: -weight[k])[:BLOCKS_TRIED]
         best: tuple[CoverageReport, int, Candidate] | None = None
         for key in tried:
