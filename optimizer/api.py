@@ -169,6 +169,9 @@ class OptimizeResult:
         bare areas (:func:`cover_repair`), in words for :meth:`summary`.
     searched : int or None
         Blocks the search placed before the settle that confirmed them.
+    shortfall : str or None
+        Short of the count, why the search stopped, in words for
+        :meth:`summary` (:func:`shortfall`); None where that is not known.
     kept : dict or None
         With ``keep``: how many blocks were kept, and the ids of those among
         them that collide, stick out of the tolerance zone or fail the settle
@@ -194,6 +197,7 @@ class OptimizeResult:
     time_limit_s: float | None = None
     cover_attempt: str | None = None
     searched: int | None = None
+    shortfall: str | None = None
 
     @property
     def valid(self) -> bool:
@@ -220,6 +224,8 @@ class OptimizeResult:
             # Why the count can end below what the search showed on the way.
             text += (f"\nthe search placed {self.searched} blocks; the confirming settle took out those "
                      f"that did not stand, with what rested on them, and {self.blocks} stood in the end")
+        if self.shortfall:
+            text += f"\n{self.shortfall}"
         if self.coverage is not None:
             text += self._not_covered()
         off = self.porosity_percent - self.target_porosity_percent
@@ -432,7 +438,27 @@ def optimize(
         if keep else None,
         cover_attempt=cover_note,
         searched=best.searched,
+        shortfall=shortfall(best.phases, problem.required, len(build), time_limit, bool(keep)),
     )
+
+
+def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_limit: float,
+              kept: bool) -> str | None:
+    """Why an attempt's search stopped short of the count, from its last pocket fill (its
+    ``ended``): no room found, or no time left; None if it reached the count or no fill ran."""
+    ended = [p for p in phases if "ended" in p]
+    if blocks >= required or not ended:
+        return None
+    last = ended[-1]
+    if last["ended"] == "room":
+        return (f"no room was found for more{' around the kept blocks' if kept else ''}: the last "
+                f"pocket fill lowered {last['drops']} blocks at random over the mound, in every "
+                f"hanging, and let the {last['checks']} most promising go; it stopped after "
+                f"{last['fruitless']} rounds in a row in which none came to rest inside the "
+                "tolerance zone")
+    if last["ended"] == "time":
+        return f"the time ran out (limit {time_limit:.0f} s): a longer --time-limit may place more"
+    return None
 
 
 #: Searches a run may make: when one ends short of the required count (or with a layout that
@@ -510,7 +536,8 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
             break
         t0 = clock()
-        more = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
+        filled = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng)
+        more = filled.build
         gained = len(more) > len(build)
         if gained:
             again, check = confirm(problem, more, rng, origin, end)
@@ -519,7 +546,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         phases.append({"strategy": "refill", "attempt": attempt, "seconds": clock() - t0,
                        "blocks": len(again) if gained else len(build),
                        "porosity_percent": (again if gained else build).porosity.percent,
-                       "added": len(again) - len(build) if gained else 0})
+                       "added": len(again) - len(build) if gained else 0, **filled.stats.to_dict()})
         if not gained:
             break
         build, confirmation = again, check

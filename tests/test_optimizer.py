@@ -596,3 +596,36 @@ def test_tetrapod_same_seed_same_layout_at_the_default_limit():
     a, b = (optimize(scene, seed=1, time_limit=120) for _ in range(2))
     assert a.layout.dumps() == b.layout.dumps()
     assert a.blocks == scene.required_blocks and a.valid, a.summary()
+
+
+def test_a_run_short_of_room_says_so(tiny):
+    """More blocks asked of the slice than fit, with time to spare: the pocket fill ends its
+    search after ``patience`` rounds in a row in which nothing came to rest, and the result
+    says that no room was found, with the fill's own figures."""
+    from optimizer.search.fill import PocketFill
+    from optimizer.search.physics import raised_check
+
+    scene = replace(tiny, required_blocks=2 * tiny.required_blocks)
+    fill = PocketFill(accept=raised_check, draws=100, checks=10, patience=2)
+    r = optimize(scene, seed=1, time_limit=300, cover=False,
+                 strategies=[BeamSearch(restarts=1, origins=1), fill])
+    assert r.blocks < scene.required_blocks
+    chosen = r.phases[-1]["chosen"] if r.phases[-1]["strategy"] == "attempts" else 1
+    last = [p for p in r.phases if p.get("attempt") == chosen and "ended" in p][-1]
+    assert last["ended"] == "room" and last["fruitless"] == 2
+    assert f"lowered {last['drops']} blocks" in r.summary() and "no room was found for more:" in r.summary()
+
+
+def test_a_shortfall_in_words():
+    """What the last fill of the chosen attempt says, in words: nothing once the count is
+    reached or where no fill ran."""
+    from optimizer.api import shortfall
+
+    room = {"strategy": "fill", "drops": 900, "checks": 60, "fruitless": 4, "ended": "room"}
+    time_out = {"strategy": "refill", "drops": 10, "checks": 2, "fruitless": 0, "ended": "time"}
+    assert shortfall([room], 75, 57, 120.0, kept=True).startswith(
+        "no room was found for more around the kept blocks: the last pocket fill lowered 900 blocks")
+    assert shortfall([room, time_out], 75, 57, 120.0, kept=False) == (
+        "the time ran out (limit 120 s): a longer --time-limit may place more")
+    assert shortfall([room], 75, 75, 120.0, kept=False) is None
+    assert shortfall([{"strategy": "beam"}], 75, 57, 120.0, kept=False) is None

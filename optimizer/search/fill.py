@@ -55,11 +55,18 @@ class FillStats(Stats):
         Blocks lowered.
     checks : int
         Candidates let go (a physics run each).
+    fruitless : int
+        Rounds in a row, at its end, in which no candidate came to rest.
+    ended : str
+        Why it stopped: ``"count"`` (reached), ``"room"`` (``patience``
+        fruitless rounds) or ``"time"``.
     """
 
     placed: int = 0
     drops: int = 0
     checks: int = 0
+    fruitless: int = 0
+    ended: str = "count"
 
 
 class PocketFill(Strategy):
@@ -124,4 +131,6 @@ class PocketFill(Strategy):
             placed += 1
             fruitless = 0
             problem.tell(self.name, build, f"{len(build)} placed")
-        return Phase(build, FillStats(placed, drops, checks), origin)
+        ended = ("count" if len(build) >= problem.required
+                 else "room" if fruitless >= self.patience else "time")
+        return Phase(build, FillStats(placed, drops, checks, fruitless, ended), origin)
