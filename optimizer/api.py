@@ -565,8 +565,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     deadline. The rows (:class:`ToeRows`) come first; then
     the same strategies, the beam ranking its pattern origins around the
     rows and leaving out the sites they are in the way of
-    (:meth:`BeamSearch.around_laid`), and the pocket fill taking
-    the pockets beside them. Searched from the chosen attempt's origin
+    (:meth:`BeamSearch.around_laid`), and setting the pattern's blocks
+    beside a wall down against it (:meth:`BeamSearch.against_wall`), and the
+    pocket fill taking the pockets beside them. Searched from the chosen attempt's origin
     without the fill (until 2026-11-26), the attempt fell short of the count
     on ``mini`` (55-67 of 75). Appends the attempt to ``tried`` and returns
     the index of the one to keep, the new one if it reaches its count and
@@ -587,8 +588,8 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, None
     if clock() + best.seconds > problem.deadline:
         return chosen, f"no time was left for an attempt with toe rows first (about {best.seconds:.0f} s)"
-    again = [ToeRows(accept=raised_check)] + [s.around_laid() if isinstance(s, BeamSearch) else s
-                                               for s in strategies]
+    again = [ToeRows(accept=raised_check)] + [s.around_laid().against_wall() if isinstance(s, BeamSearch)
+                                               else s for s in strategies]
     tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1,
                           all_or_nothing=True))
     new = tried[-1]

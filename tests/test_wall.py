@@ -123,3 +123,36 @@ def test_an_optimized_layout_never_crosses_the_wall():
     assert r.blocks > 0.6 * short.required_blocks and r.collisions == 0 and r.out_of_tolerance == 0
     assert min(x) >= -1.5 - 1e-9
     assert min(x) < -1.5 + 0.5  # blocks do come up to the wall: the test tests something
+
+
+@pytest.mark.parametrize("gap_h", [0.3, 0.45])
+def test_a_pattern_block_near_the_wall_is_set_down_against_it(walled, open_, gap_h):
+    """``beam.against_wall``: a block standing less than ``WALL_GAP_H`` block heights off the
+    wall is lowered again against it, no higher, inside the zone; one further off, or with no
+    wall, stays as it was."""
+    from geometry.checks import check_layout
+    from optimizer.search.beam import WALL_GAP_H, WALL_RISE, WALL_STEP, against_wall
+    from optimizer.search.build import Build
+    from optimizer.search.shapes import ShapeCache
+    from tests.test_strategies import problem
+
+    h = walled.block.height
+    shape = ShapeCache(walled.block).hung("crown", 0.4)
+    lower = lambda pr, b, sh, x, y: b.lower(sh, x, y)  # noqa: E731 - the beam's own lowering
+    build = Build(walled)
+    probe = build.lower(shape, 0.0, 7.0)
+    half = -probe.pose.apply(walled.block.vertices)[:, 0].min()  # centroid to its landward side
+    near = build.lower(shape, -1.5 + half + gap_h * h, 7.0)
+    moved = against_wall(problem(walled), build, near, lower)
+    gap = moved.pose.apply(walled.block.vertices)[:, 0].min() + 1.5
+    assert 0.0 <= gap < WALL_STEP
+    assert moved.pose.position[2] <= near.pose.position[2] + WALL_RISE
+    build.place(moved)
+    report = check_layout(walled, build.placed(), with_coverage=False)
+    assert not report.out_of_tolerance and not report.collisions
+
+    far = Build(walled).lower(shape, -1.5 + half + (WALL_GAP_H + 0.1) * h, 7.0)
+    assert against_wall(problem(walled), Build(walled), far, lower) is far
+    open_build = Build(open_)
+    beside = open_build.lower(shape, -1.5 + half + gap_h * h, 7.0)
+    assert against_wall(problem(open_), open_build, beside, lower) is beside
