@@ -131,6 +131,7 @@ class PocketFill(Strategy):
             placed += 1
             fruitless = 0
             problem.tell(self.name, build, f"{len(build)} placed")
+        # A round the deadline cut short counts as fruitless: out of time, it is the time.
         ended = ("count" if len(build) >= problem.required
-                 else "room" if fruitless >= self.patience else "time")
+                 else "time" if problem.time_left() <= 0 else "room")
         return Phase(build, FillStats(placed, drops, checks, fruitless, ended), origin)
