@@ -220,7 +220,8 @@ class OptimizeResult:
             text += f"; bare {c['bare_share_percent']:.1f}%"
             if c["max_bare_m"] is not None:
                 text += f", farthest {c['max_bare_m']:.2f} m from a block"
-        if self.searched is not None and self.blocks < min(self.searched, self.required_blocks):
+        if (self.searched is not None and self.blocks < min(self.searched, self.required_blocks)
+                and self.stable is not False):
             # Why the count can end below what the search showed on the way.
             text += (f"\nthe search placed {self.searched} blocks; the confirming settle took out those "
                      f"that did not stand, with what rested on them, and {self.blocks} stood in the end")
@@ -565,9 +566,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     deadline. The rows (:class:`ToeRows`) come first; then
     the same strategies, the beam ranking its pattern origins around the
     rows and leaving out the sites they are in the way of
-    (:meth:`BeamSearch.around_laid`), and setting the pattern's blocks
-    beside a wall down against it (:meth:`BeamSearch.against_wall`), and the
-    pocket fill taking the pockets beside them. Searched from the chosen attempt's origin
+    (:meth:`BeamSearch.around_laid`) and setting the pattern's blocks
+    beside a wall down against it (:meth:`BeamSearch.against_wall`); the
+    pocket fill takes the pockets beside the rows. Searched from the chosen attempt's origin
     without the fill (until 2026-11-26), the attempt fell short of the count
     on ``mini`` (55-67 of 75). Appends the attempt to ``tried`` and returns
     the index of the one to keep, the new one if it reaches its count and

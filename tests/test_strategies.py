@@ -255,21 +255,23 @@ def test_only_the_beam_around_laid_blocks_leaves_out_their_sites(tiny):
 
 def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
     """``covered_attempt`` lays the rows first and gives the beam that follows them the
-    blocks laid before it (``BeamSearch.around_laid``)."""
+    blocks laid before it (``BeamSearch.around_laid``), and sets its pattern blocks beside a
+    wall down against it (``BeamSearch.against_wall``); the first attempt does neither."""
     import optimizer.api as api
 
     seen = []
     real = api._attempt
 
     def spy(problem_, strategies, *args, **kwargs):
-        seen.append([(type(s).__name__, getattr(s, "around_all", None)) for s in strategies])
+        seen.append([(type(s).__name__, getattr(s, "around_all", None), getattr(s, "to_wall", None))
+                     for s in strategies])
         return real(problem_, strategies, *args, **kwargs)
 
     monkeypatch.setattr(api, "_attempt", spy)
     api.optimize(tiny, seed=1, time_limit=120,
                  strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
-    assert seen[0] == [("BeamSearch", False), ("Annealing", None)]
-    assert seen[-1] == [("ToeRows", None), ("BeamSearch", True), ("Annealing", None)]
+    assert seen[0] == [("BeamSearch", False, False), ("Annealing", None, None)]
+    assert seen[-1] == [("ToeRows", None, None), ("BeamSearch", True, True), ("Annealing", None, None)]
 
 
 def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
@@ -284,8 +286,9 @@ def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
     rest = tiny.block.rest_poses[0]
     low = rest.centroid_height
     runs = {}
-    # (whole, time after the first settle): one settle costs 0.05 s on the work clock.
-    for whole, spare in ((True, 0.15), (False, 0.15), (False, 0.01)):
+    # (whole, time after the first settle): one settle costs 0.05 s on the work clock, and the
+    # verdict on a layout that stands takes two.
+    for whole, spare in ((True, 0.15), (False, 0.15), (False, 0.06), (False, 0.01)):
         clock = WorkClock(per_drop=0.0, per_settle=0.05).install(monkeypatch)
         pr = problem(tiny, seconds=0.0, clock=clock)
         build = Build(tiny)
@@ -299,5 +302,6 @@ def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
     # What is left is settled, and stands, within the end.
     stable, blocks, settles, within = runs[False, 0.15]
     assert (stable, blocks, within) == (True, 1, True) and settles > 1
-    # No time for that settle: as it failed, within the end.
+    # No time for that verdict (one settle would fit, not two): as it failed, within the end.
+    assert runs[False, 0.06] == (False, 2, 1, True)
     assert runs[False, 0.01] == (False, 2, 1, True)

@@ -127,11 +127,11 @@ def test_an_optimized_layout_never_crosses_the_wall():
 
 @pytest.mark.parametrize("gap_h", [0.3, 0.45])
 def test_a_pattern_block_near_the_wall_is_set_down_against_it(walled, open_, gap_h):
-    """``beam.against_wall``: a block standing less than ``WALL_GAP_H`` block heights off the
+    """``beam.set_against_wall``: a block standing less than ``WALL_GAP_H`` block heights off the
     wall is lowered again against it, no higher, inside the zone; one further off, or with no
     wall, stays as it was."""
     from geometry.checks import check_layout
-    from optimizer.search.beam import WALL_GAP_H, WALL_RISE, WALL_STEP, against_wall
+    from optimizer.search.beam import WALL_GAP_H, WALL_RISE, WALL_STEP, set_against_wall
     from optimizer.search.build import Build
     from optimizer.search.shapes import ShapeCache
     from tests.test_strategies import problem
@@ -143,7 +143,7 @@ def test_a_pattern_block_near_the_wall_is_set_down_against_it(walled, open_, gap
     probe = build.lower(shape, 0.0, 7.0)
     half = -probe.pose.apply(walled.block.vertices)[:, 0].min()  # centroid to its landward side
     near = build.lower(shape, -1.5 + half + gap_h * h, 7.0)
-    moved = against_wall(problem(walled), build, near, lower)
+    moved = set_against_wall(problem(walled), build, near, lower)
     gap = moved.pose.apply(walled.block.vertices)[:, 0].min() + 1.5
     assert 0.0 <= gap < WALL_STEP
     assert moved.pose.position[2] <= near.pose.position[2] + WALL_RISE
@@ -152,7 +152,7 @@ def test_a_pattern_block_near_the_wall_is_set_down_against_it(walled, open_, gap
     assert not report.out_of_tolerance and not report.collisions
 
     far = Build(walled).lower(shape, -1.5 + half + (WALL_GAP_H + 0.1) * h, 7.0)
-    assert against_wall(problem(walled), Build(walled), far, lower) is far
+    assert set_against_wall(problem(walled), Build(walled), far, lower) is far
     open_build = Build(open_)
     beside = open_build.lower(shape, -1.5 + half + gap_h * h, 7.0)
-    assert against_wall(problem(open_), open_build, beside, lower) is beside
+    assert set_against_wall(problem(open_), open_build, beside, lower) is beside

@@ -90,14 +90,16 @@ def gain(problem: Problem, c: Candidate) -> float:
             + SUPPORT_GAIN * min(supports, 3) / 3)
 
 
-def against_wall(problem: Problem, build: Build, c: Candidate,
-                 lower: Callable[[Problem, Build, Shape, float, float], Candidate | None]) -> Candidate:
+def set_against_wall(problem: Problem, build: Build, c: Candidate,
+                     lower: Callable[[Problem, Build, Shape, float, float], Candidate | None]) -> Candidate:
     """``c`` set down against the scene's wall, if it stands less than ``WALL_GAP_H`` from it.
 
     The block, as hung, is lowered again at the same y, ``WALL_STEP`` apart from
     half a step off the wall outwards; the first place where it rests no higher
     than ``c`` (to within ``WALL_RISE``) is taken. Otherwise, and with no wall,
-    ``c`` itself.
+    ``c`` itself. The wall is on the landward (-x) side, as scenes have it. The
+    beam offers the moved candidate in place of the site as drawn: if it does not
+    come to rest, the site is offered jittered next, not as drawn.
     """
     wall = problem.scene.tolerance.wall_x
     if wall is None:
@@ -219,7 +221,7 @@ class BeamSearch(Strategy):
 
     def against_wall(self) -> BeamSearch:
         """The same search, with the pattern's blocks that stand within ``WALL_GAP_H`` of a wall
-        set down against it (:func:`against_wall`), for the attempt that aims to cover."""
+        set down against it (:func:`set_against_wall`), for the attempt that aims to cover."""
         other = copy.copy(self)
         other.to_wall = True
         return other
@@ -251,7 +253,7 @@ class BeamSearch(Strategy):
                  if not beam.tried(i) else None)
             if c is not None:
                 if self.to_wall:
-                    c = against_wall(problem, beam.build, c, self._lower)
+                    c = set_against_wall(problem, beam.build, c, self._lower)
                 out.append((gain(problem, c), c, i))
                 continue
             fitted = False

@@ -121,9 +121,9 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
             break
         bare = BareArea(report, block)
         free = build.free_keys()
-        # Ranked by the bare area within reach of anywhere the grid can lower them, not only of
-        # where they stand: on ``wall-shake`` the crest beside the wall was out of the top row's
-        # own reach, so the toe row was tried, and nothing moved.
+        # Ranked by the bare area within their reach plus the grid's radius (a bound on where the
+        # grid can lower them), not only of where they stand: on ``wall-shake`` the crest beside
+        # the wall was out of the top row's own reach, so the toe row was tried, and nothing moved.
         weight = {k: bare.near(build.poses[k].position, bare.reach + radius) for k in free}
         tried = sorted((k for k in free if weight[k] > 0), key=lambda k: -weight[k])[:BLOCKS_TRIED]
         best: tuple[CoverageReport, int, Candidate] | None = None

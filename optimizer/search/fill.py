@@ -59,14 +59,14 @@ class FillStats(Stats):
         Rounds in a row, at its end, in which no candidate came to rest.
     ended : str
         Why it stopped: ``"count"`` (reached), ``"room"`` (``patience``
-        fruitless rounds) or ``"time"``.
+        fruitless rounds, the last not cut short by the clock) or ``"time"``.
     """
 
     placed: int = 0
     drops: int = 0
     checks: int = 0
     fruitless: int = 0
-    ended: str = "count"
+    ended: str = ""
 
 
 class PocketFill(Strategy):
@@ -101,12 +101,15 @@ class PocketFill(Strategy):
         shapes = ShapeCache(problem.scene.block)
         xr, yr = fill_window(problem.scene)
         placed = drops = checks = fruitless = 0
+        cut = False  # whether the last round was cut short by the clock
         while len(build) < problem.required and fruitless < self.patience and problem.time_left() > 0:
             cands = []
+            cut = False
             # The drops may take half the time left: the other half is for letting them go.
             stop = problem.now() + 0.5 * problem.time_left()
             for _ in range(self.draws * 2 ** fruitless):
                 if problem.now() > stop:
+                    cut = True
                     break
                 fam = problem.families[int(rng.integers(len(problem.families)))]
                 q = (free(rng) if fam == "free"
@@ -119,6 +122,7 @@ class PocketFill(Strategy):
             rested = None
             for _, _, c in cands[: self.checks]:
                 if problem.time_left() <= 0:
+                    cut = True
                     break
                 checks += 1
                 rested = self.accept(problem, build, c)
@@ -131,7 +135,7 @@ class PocketFill(Strategy):
             placed += 1
             fruitless = 0
             problem.tell(self.name, build, f"{len(build)} placed")
-        # A round the deadline cut short counts as fruitless: out of time, it is the time.
+        # A fruitless round the clock cut short says nothing of the room: that is the time.
         ended = ("count" if len(build) >= problem.required
-                 else "time" if problem.time_left() <= 0 else "room")
+                 else "room" if fruitless >= self.patience and not cut else "time")
         return Phase(build, FillStats(placed, drops, checks, fruitless, ended), origin)

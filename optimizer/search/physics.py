@@ -231,7 +231,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
     if it is smaller (a settled empty layout is trivially stable), with two
     exceptions, where the verdict says it fails: the build has kept blocks
     (``Build.keep``) that fail (they stay, and the caller reports them); or
-    not even one more settle of what is left fits before ``end``. The time
+    not even one more verdict on what is left fits before ``end``. The time
     limit is a promise: a settle past ``end`` once took ``full`` 7 s past its
     limit (30 s with a second run beside it).
 
@@ -279,10 +279,11 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
                 break
         left = limit - problem.now() - cost
         repair = rounds < ROUNDS and left > 2 * cost + 1.0
-        if not repair and (whole or left < 0):
+        if not repair and (whole or left < cost):
             # No repair fits. A layout kept only whole is not kept smaller, and with no time for
-            # one more settle what is left cannot be confirmed: the rounds end with the failed
-            # verdict, within the time.
+            # one more verdict (two settles where what is left stands, as the verdict of a layout
+            # that stood is: ``cost`` was one) what is left cannot be confirmed: the rounds end
+            # with the failed verdict, within the time.
             break
         rounds += 1
         smaller = build.copy()
@@ -295,7 +296,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             beam = BeamSearch(width=2, accept=local_check, origin=origin, restarts=1, share=0.5)
             build = beam.run(repair_problem, Phase(smaller, origin=origin), rng).build
         else:
-            build = smaller  # out of rounds: keep what stands
+            build = smaller  # out of rounds, or no time for a repair: settle what is left
     rank = {k: i for i, k in enumerate(build.order)}
     return build, Confirmation(
         adopted=adopted,
