@@ -104,10 +104,10 @@ def set_against_wall(problem: Problem, build: Build, c: Candidate,
     wall = problem.scene.tolerance.wall_x
     if wall is None:
         return c
-    gap = float(c.pose.apply(build.block.vertices)[:, 0].min() - wall)
+    x, y, z = c.pose.position
+    gap = float(x + c.shape.xy_boxes[:, 0, 0].min() - wall)  # the footprint the drop already has
     if not WALL_STEP < gap < WALL_GAP_H * problem.scene.block.height:
         return c
-    x, y, z = c.pose.position
     for left in np.arange(WALL_STEP / 2, gap, WALL_STEP):
         d = lower(problem, build, c.shape, float(x - gap + left), float(y))
         if d is not None and d.pose.position[2] <= z + WALL_RISE:
