@@ -546,8 +546,12 @@ TUNER_VERSION = 3
 
 
 def cache_path(block: Block) -> Path:
-    """Where a block's tuned lattice is cached: keyed by the SHA-256 of its mesh and the tuner's version."""
-    digest = hashlib.sha256(np.ascontiguousarray(block.vertices).tobytes()).hexdigest()[:16]
+    """Where a block's tuned lattice is cached: keyed by the SHA-256 of its mesh and its convex
+    pieces (the search's collisions; a mesh cut anew is tuned anew), and the tuner's version."""
+    sha = hashlib.sha256(np.ascontiguousarray(block.vertices).tobytes())
+    for piece in block.pieces:
+        sha.update(np.ascontiguousarray(piece.vertices).tobytes())
+    digest = sha.hexdigest()[:16]
     return cache_dir() / "lattices" / f"v{TUNER_VERSION}-{digest}.json"
 
 
