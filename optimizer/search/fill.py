@@ -111,10 +111,7 @@ class PocketFill(Strategy):
                 if problem.now() > stop:
                     cut = True
                     break
-                fam = problem.families[int(rng.integers(len(problem.families)))]
-                q = (free(rng) if fam == "free"
-                     else hanging_of(shapes.block, fam, float(rng.uniform(0, 2 * np.pi))))
-                c = build.lower(shapes.get(q), float(rng.uniform(*xr)), float(rng.uniform(*yr)), loose=True)
+                c = random_drop(problem, build, shapes, rng, (xr, yr))
                 drops += 1
                 if c is not None:
                     cands.append((-gain(problem, c), len(cands), c))
@@ -139,3 +136,13 @@ class PocketFill(Strategy):
         ended = ("count" if len(build) >= problem.required
                  else "room" if fruitless >= self.patience and not cut else "time")
         return Phase(build, FillStats(placed, drops, checks, fruitless, ended), origin)
+
+
+def random_drop(problem: Problem, build: Build, shapes: ShapeCache, rng: np.random.Generator,
+                window: tuple[tuple[float, float], tuple[float, float]]) -> Candidate | None:
+    """A block in a random allowed hanging at a random yaw, lowered at a random point of
+    ``window`` (``fill_window``) until it touches; loose where its first contact is out of the zone."""
+    fam = problem.families[int(rng.integers(len(problem.families)))]
+    q = free(rng) if fam == "free" else hanging_of(shapes.block, fam, float(rng.uniform(0, 2 * np.pi)))
+    xr, yr = window
+    return build.lower(shapes.get(q), float(rng.uniform(*xr)), float(rng.uniform(*yr)), loose=True)

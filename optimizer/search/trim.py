@@ -1,0 +1,121 @@
+"""Porosity trim: blocks that stick out of the design prism moved into pockets inside it.
+
+With the count fixed, a layout's porosity is the share of the design prism its
+blocks leave empty, so it is over its window only by what the blocks hold
+outside the prism: over the crest, out of the slopes, at the toes. Rows laid
+along the toes to cover them hold much of their volume there: on ``mini``
+with the Shake Block as a user's mesh, the attempt with toe rows first held
+4.9 m³ outside the prism against 2.5 m³ without the rows (2.3 m³ of it in the
+rows), and came to 57.3 % against a window that ends at 57 %
+(docs/coverage-study.md, "The porosity of the attempt with toe rows").
+
+Each move takes one block that carries nothing out, of those holding the most
+volume outside the prism, and lowers it again where it holds more inside:
+``draws`` random drops over the fill window, in any hanging, ranked by the
+volume they hold inside, the best let go among their fixed neighbours
+(``accept``) until one comes to rest inside the zone with more inside than
+the block held before. The move is kept if ``keep`` accepts the new build (a
+coverage that must stay better than another attempt's). Moves go on, one at a
+time, until the porosity is within ``TARGET_POINTS`` of the target, or no
+move is found, or the time is up. The caller settles the whole layout again.
+
+How many moves, blocks, drops and checks there are is fixed, so a seed gives
+one result; the deadline only stops it early.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from .build import Build, Candidate, fill_window
+from .fill import random_drop
+from .problem import TARGET_POINTS, Problem
+from .shapes import ShapeCache
+
+#: Moves at most.
+MOVES = 8
+#: Blocks tried for each move: the free ones with the most volume outside the prism.
+BLOCKS_TRIED = 3
+#: Drops lowered for each block tried.
+DRAWS = 300
+#: Candidates let go for each block tried, the most inside first.
+CHECKS = 12
+#: A move must add at least this share of a block's volume inside the prism.
+MIN_GAIN = 0.02
+
+
+@dataclass
+class TrimStats:
+    """What the trim did: moves kept, candidates let go, and the porosity before and after."""
+
+    moved: int = 0
+    tried: int = 0
+    porosity_before_percent: float | None = None
+    porosity_percent: float | None = None
+
+    def to_dict(self) -> dict:
+        return {"moved": self.moved, "tried": self.tried,
+                "porosity_before_percent": self.porosity_before_percent,
+                "porosity_percent": self.porosity_percent}
+
+
+def over(problem: Problem, build: Build) -> float:
+    """How many points the build's porosity lies above its window (0 within it or below)."""
+    return max(0.0, build.porosity.percent - problem.target - TARGET_POINTS)
+
+
+Accept = Callable[[Problem, Build, Candidate], Candidate | None]
+
+
+def trim_moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Generator,
+               keep: Callable[[Build], bool] | None = None) -> tuple[Build, TrimStats]:
+    """Move free blocks from outside the prism to pockets inside while the porosity is over
+    its window; returns a new build (``build`` is not changed)."""
+    block = problem.scene.block
+    shapes = ShapeCache(block)
+    window = fill_window(problem.scene)
+    stats = TrimStats(porosity_before_percent=build.porosity.percent, porosity_percent=build.porosity.percent)
+    build = build.copy()
+    for _ in range(MOVES):
+        if over(problem, build) <= 0 or problem.time_left() <= 0:
+            break
+        outside = {k: block.volume - build.porosity.contribution(k) for k in build.free_keys()}
+        moved = None
+        for key in sorted(outside, key=lambda k: -outside[k])[:BLOCKS_TRIED]:
+            if outside[key] < MIN_GAIN * block.volume or problem.time_left() <= 0:
+                break
+            trial = build.copy()
+            trial.remove(key)
+            need = block.volume - outside[key] + MIN_GAIN * block.volume
+            cands = []
+            for _ in range(DRAWS):
+                if problem.time_left() <= 0:
+                    break
+                c = random_drop(problem, trial, shapes, rng, window)
+                # A loose drop (first contact out of the zone) may slide into a pocket, deeper in.
+                if c is not None and (c.inside >= need or c.loose):
+                    cands.append((-c.inside, len(cands), c))
+            cands.sort(key=lambda t: t[:2])
+            for _, _, c in cands[:CHECKS]:
+                if problem.time_left() <= 0:
+                    break
+                stats.tried += 1
+                rested = accept(problem, trial, c)
+                if rested is None or rested.inside < need:
+                    continue
+                trial.place(rested)
+                if keep is None or keep(trial):
+                    moved = trial
+                break
+            if moved is not None:
+                break
+        if moved is None:
+            break
+        build = moved
+        stats.moved += 1
+        stats.porosity_percent = build.porosity.percent
+        problem.tell("trim", build, f"{stats.moved} moved, porosity {build.porosity.percent:.2f}%")
+    return build, stats

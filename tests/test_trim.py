@@ -1,0 +1,90 @@
+"""The porosity trim: blocks that stick out of the design prism moved into pockets inside it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from geometry.checks import check_layout
+from geometry.layout import read_layout
+from geometry.scene import load_scene
+from optimizer import api
+from optimizer.search import trim
+from optimizer.search.build import Build
+from optimizer.search.physics import raised_check
+from tests.conftest import ROOT
+from tests.test_strategies import problem
+
+ROUGH = ROOT / "tests" / "data" / "mini-rough-seed1.json"
+
+
+def _build(scene, path) -> Build:
+    build = Build(scene)
+    for p in read_layout(path).blocks:
+        build.place_at(p.pose)
+    return build
+
+
+@pytest.fixture(scope="module")
+def rough():
+    """``mini-rough`` seed 1 (tests/data/README.md): 75 blocks at 57.22 %, 0.22 points over its window."""
+    scene = load_scene(ROOT / "benchmarks" / "scenes" / "mini-rough.toml")
+    return scene, _build(scene, ROUGH)
+
+
+def test_blocks_that_stick_out_are_moved_into_the_prism(rough):
+    """The trim ends within the window, by moving only blocks that carried nothing, each to a
+    place where it holds more of its volume inside the prism; the layout stays valid, and the
+    build it was given is not changed."""
+    scene, build = rough
+    before = build.porosity.percent
+    assert trim.over(problem(scene), build) > 0
+    free = set(build.free_keys())
+    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(1))
+    assert stats.moved >= 1 and trim.over(problem(scene), trimmed) == 0
+    assert trimmed.porosity.percent < before and stats.porosity_percent == trimmed.porosity.percent
+    assert len(trimmed) == len(build) == scene.required_blocks
+    moved = [k for k in build.order if k not in trimmed.poses
+             or not np.array_equal(trimmed.poses[k].position, build.poses[k].position)]
+    assert len(moved) == stats.moved and set(moved) <= free
+    assert build.porosity.percent == before  # the input build is not changed
+    report = check_layout(scene, trimmed.placed())
+    assert not report.collisions and not report.out_of_tolerance
+    assert report.porosity_percent == pytest.approx(trimmed.porosity.percent, abs=1e-6)
+
+
+def test_a_move_the_caller_refuses_is_not_made(rough):
+    """``keep`` (in the coverage attempt: stays better covered) has the last word on each move."""
+    scene, build = rough
+    seen = []
+
+    def refuse(candidate: Build) -> bool:
+        seen.append(candidate.porosity.percent)
+        return False
+
+    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(1), refuse)
+    assert seen and min(seen) < build.porosity.percent  # it had moves to offer
+    assert stats.moved == 0 and trimmed.porosity.percent == build.porosity.percent
+
+
+def test_a_layout_within_its_window_is_left_as_it_is():
+    scene = load_scene("mini")
+    build = _build(scene, ROOT / "tests" / "data" / "mini-reference.json")
+    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(1))
+    assert stats.moved == stats.tried == 0
+    assert all(np.array_equal(trimmed.poses[k].position, build.poses[k].position) for k in build.order)
+
+
+def test_a_trimmed_layout_is_written_only_once_it_stands(rough):
+    """``optimize``'s step: the trimmed layout replaces the attempt after the settle that confirms
+    it stands, with its porosity within the window; the ``trim`` phase says so."""
+    scene, build = rough
+    p = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    end = p.deadline + 30.0
+    kept, phase = api.trim_repair(p, attempt, np.random.default_rng(1), 1, end)
+    assert phase is not None and phase["strategy"] == "trim" and phase["moved"] >= 1
+    assert phase["stood"] is True and kept is not attempt
+    assert kept.stable is True and kept.settle["stable"] is True
+    assert abs(kept.build.porosity.percent - scene.target_porosity) <= 1.0
+    assert attempt.build is build  # the attempt keeps its own layout
