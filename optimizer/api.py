@@ -24,10 +24,14 @@ The pipeline, each step a pluggable strategy instance:
 5. if the layout is still short of its count and the time it took is left
    before the deadline, steps 1-4 run again on the same random stream (up to
    ``ATTEMPTS`` in all), and the best layout is kept;
-6. if the best layout reaches its count and porosity but leaves the mound's
+6. if the best layout reaches its count and stands but is over its porosity
+   window, blocks that stick out of the design prism are moved into pockets
+   inside it (:func:`trim_repair`, ``search.trim``);
+7. if the best layout reaches its count and porosity but leaves the mound's
    surface bare, and its time is left, one more attempt lays rows along the
-   toes first (:func:`covered_attempt`), and is kept if it covers better;
-7. if the layout kept still leaves the surface bare, blocks that carry
+   toes first (:func:`covered_attempt`; trimmed as in 6 if it covers better
+   but is over the window), and is kept if it covers better;
+8. if the layout kept still leaves the surface bare, blocks that carry
    nothing are moved one by one to where they cover most bare area, within
    the porosity window, and the moves are kept if the layout then stands
    (:func:`cover_repair`).
@@ -62,6 +66,7 @@ from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, raised_check, stands, verdict
 from .search.problem import TARGET_POINTS, Clock, Phase, Problem, Strategy
 from .search.toe import ToeRows
+from .search.trim import over, trim_moves
 
 #: The default time limit (s): at least this, ``SECONDS_PER_BLOCK`` a required block above it,
 #: and at most ``MAX_DEFAULT_LIMIT`` (issue 24: up to 0.5 s a block, 20 minutes at most).
@@ -327,7 +332,9 @@ def optimize(
     lattice : InterlockLattice, optional
         Placement pattern; the block type's tuned lattice by default.
     settle_layout : bool
-        Confirm (and repair) with a physics settle.
+        Confirm (and repair) with a physics settle; and where the best attempt
+        reaches its count over its porosity window, move blocks that stick
+        out of the design prism into pockets inside it (:func:`trim_repair`).
     report : callable, optional
         ``report(phase, build, message)`` for a progress display.
     bound : bool
@@ -387,6 +394,11 @@ def optimize(
         if tried[-1].reached(problem) or clock() + tried[-1].seconds > problem.deadline:
             break
     chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
+    if settle_layout:
+        # A layout at its count over its porosity window: blocks that stick out moved in.
+        tried[chosen], trim = trim_repair(problem, tried[chosen], rng, chosen + 1, end)
+        if trim is not None:
+            tried[chosen].phases.append(trim)
     cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
         chosen, cover_note = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
@@ -570,7 +582,11 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     beside a wall down against it (:meth:`BeamSearch.against_wall`); the
     pocket fill takes the pockets beside the rows. Searched from the chosen attempt's origin
     without the fill (until 2026-11-26), the attempt fell short of the count
-    on ``mini`` (55-67 of 75). Appends the attempt to ``tried`` and returns
+    on ``mini`` (55-67 of 75). The rows hold much of their volume outside
+    the design prism, and the attempt often came to 57.1-57.6 %, over the
+    window: one that reaches its count, stands and covers better is then
+    trimmed (:func:`trim_repair`), each move kept only while it stays better
+    covered. Appends the attempt to ``tried`` and returns
     the index of the one to keep, the new one if it reaches its count and
     porosity too and covers better, with what came of it in words (None
     where the layout covers).
@@ -602,14 +618,42 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, f"{what} placed {len(new.build)} of {problem.required} blocks, so it was not kept"
     if not new.reached(problem):
         return chosen, f"{what} did not stand, so it was not kept"
+    trimmed_note = ""
+    if over(problem, new.build) > 0 and clock() + coverage_reserve(scene) <= problem.deadline:
+        # The rows hold much of their volume outside the prism: blocks that stick out are
+        # moved into pockets while the layout stays better covered than the one it would replace.
+        new.coverage = coverage(scene, new.build.placed())
+        if new.coverage.better_than(best.coverage):
+            reports: list[CoverageReport] = []
+
+            def better(build: Build) -> bool:
+                report = coverage(scene, build.placed())
+                if not report.better_than(best.coverage):
+                    return False
+                reports.append(report)  # the last is the trimmed layout's
+                return True
+
+            trimmed, phase = trim_repair(problem, new, rng, len(tried), end, better)
+            if phase is not None:
+                new.phases.append(phase)
+                if trimmed is not new:
+                    tried[-1] = new = replace(trimmed, coverage=reports[-1])
+                    trimmed_note = (f" ({phase['moved']} of its blocks moved into the design prism took "
+                                    f"it from {phase['porosity_before_percent']:.2f}%)")
+                elif phase["moved"]:
+                    trimmed_note = (f"; {phase['moved']} of its blocks moved into the design prism took it "
+                                    f"to {phase['porosity_percent']:.2f}%"
+                                    + (", but then it did not stand" if phase["stood"] is False else ""))
     if not new.on_target(problem):
-        return chosen, f"{what} came to {new.build.porosity.percent:.2f}% porosity, so it was not kept"
-    if clock() + coverage_reserve(scene) > problem.deadline:
-        return chosen, f"{what} reached the count, but no time was left to measure its coverage"
-    new.coverage = coverage(scene, new.build.placed())
+        return chosen, (f"{what} came to {new.build.porosity.percent:.2f}% porosity{trimmed_note}, "
+                        "so it was not kept")
+    if new.coverage is None:
+        if clock() + coverage_reserve(scene) > problem.deadline:
+            return chosen, f"{what} reached the count, but no time was left to measure its coverage"
+        new.coverage = coverage(scene, new.build.placed())
     if not new.coverage.better_than(best.coverage):
         return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
-    return len(tried) - 1, (f"the layout is that of {what}; without them "
+    return len(tried) - 1, (f"the layout is that of {what}{trimmed_note}; without them "
                             f"{best.coverage.bare_share_percent:.1f}% was bare")
 
 
@@ -643,20 +687,62 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     phase = {"strategy": "cover", "attempt": number, "seconds": 0.0, "blocks": len(moved),
              "porosity_percent": moved.porosity.percent, **stats.to_dict(), "stood": None}
     kept = attempt
-    if stats.moved and clock() + reserve <= end:
-        t1 = clock()
-        result = verdict(problem, moved.placed(), rng)
-        phase["stood"] = bool(result.stable)
-        if result.stable:
-            settle = {**attempt.settle, "stable": True, "max_displacement_m": result.max_displacement_m,
-                      "max_rotation_deg": result.max_rotation_deg, "unstable": [],
-                      "seconds": attempt.settle.get("seconds", 0.0) + clock() - t1}
-            kept = replace(attempt, build=moved, coverage=after, settle=settle)
+    if stats.moved:
+        kept = _settled_again(problem, attempt, moved, rng, end, phase, coverage=after)
     if kept is attempt:
         phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,
                      bare_share_percent=attempt.coverage.bare_share_percent)
     phase["seconds"] = clock() - t0
     return kept, phase
+
+
+def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int, end: float,
+                keep: Callable[[Build], bool] | None = None) -> tuple[_Attempt, dict[str, Any] | None]:
+    """The attempt with blocks moved from outside the design prism into pockets (``search.trim``),
+    where it reaches its count and stands but its porosity is over its window.
+
+    Within the search's time, less half a settle's reserve; ``keep`` may
+    refuse a move (the coverage attempt's must stay better covered than the
+    layout it would replace). The trimmed layout is kept only if its porosity
+    is then within the window and it stands when settled again
+    (:func:`_settled_again`). Returns the attempt to keep and the ``trim``
+    phase (None where nothing was tried).
+    """
+    clock, scene = problem.clock, problem.scene
+    if not attempt.reached(problem) or attempt.stable is not True or over(problem, attempt.build) <= 0:
+        return attempt, None
+    reserve = settle_reserve(scene)
+    if clock() + reserve > problem.deadline:
+        return attempt, None
+    t0 = clock()
+    short = replace(problem, deadline=problem.deadline - reserve / 2)
+    trimmed, stats = trim_moves(short, attempt.build, raised_check, rng, keep)
+    phase = {"strategy": "trim", "attempt": number, "seconds": 0.0, "blocks": len(trimmed), **stats.to_dict(),
+             "stood": None}
+    kept = attempt
+    if stats.moved and over(problem, trimmed) <= 0:
+        kept = _settled_again(problem, attempt, trimmed, rng, end, phase, coverage=None)
+    phase["seconds"] = clock() - t0
+    return kept, phase
+
+
+def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.random.Generator, end: float,
+                   phase: dict[str, Any], **changes: Any) -> _Attempt:
+    """``attempt`` with ``build`` (and ``changes``) if that stands when settled again
+    (:func:`physics.verdict`) within a settle's reserve before ``end``; else ``attempt``.
+    Records in ``phase["stood"]`` whether it stood (None if there was no time)."""
+    clock = problem.clock
+    if clock() + settle_reserve(problem.scene) > end:
+        return attempt
+    t1 = clock()
+    result = verdict(problem, build.placed(), rng)
+    phase["stood"] = bool(result.stable)
+    if not result.stable:
+        return attempt
+    settle = {**attempt.settle, "stable": True, "max_displacement_m": result.max_displacement_m,
+              "max_rotation_deg": result.max_rotation_deg, "unstable": [],
+              "seconds": attempt.settle.get("seconds", 0.0) + clock() - t1}
+    return replace(attempt, build=build, settle=settle, **changes)
 
 
 def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:
