@@ -619,11 +619,14 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     if not new.reached(problem):
         return chosen, f"{what} did not stand, so it was not kept"
     trimmed_note = ""
-    if over(problem, new.build) > 0 and clock() + coverage_reserve(scene) <= problem.deadline:
-        # The rows hold much of their volume outside the prism: blocks that stick out are
-        # moved into pockets while the layout stays better covered than the one it would replace.
-        new.coverage = coverage(scene, new.build.placed())
-        if new.coverage.better_than(best.coverage):
+    if over(problem, new.build) > 0:
+        trimmed_note = "; no time was left to move blocks into the design prism"
+        if clock() + coverage_reserve(scene) <= problem.deadline:
+            # The rows hold much of their volume outside the prism: blocks that stick out are moved
+            # into pockets while the layout stays better covered than the one it would replace.
+            new.coverage = coverage(scene, new.build.placed())
+            trimmed_note = f" and covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
+        if new.coverage is not None and new.coverage.better_than(best.coverage):
             reports: list[CoverageReport] = []
 
             def better(build: Build) -> bool:
@@ -636,14 +639,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             trimmed, phase = trim_repair(problem, new, rng, len(tried), end, better)
             if phase is not None:
                 new.phases.append(phase)
-                if trimmed is not new:
-                    tried[-1] = new = replace(trimmed, coverage=reports[-1])
-                    trimmed_note = (f" ({phase['moved']} of its blocks moved into the design prism took "
-                                    f"it from {phase['porosity_before_percent']:.2f}%)")
-                elif phase["moved"]:
-                    trimmed_note = (f"; {phase['moved']} of its blocks moved into the design prism took it "
-                                    f"to {phase['porosity_percent']:.2f}%"
-                                    + (", but then it did not stand" if phase["stood"] is False else ""))
+            if trimmed is not new:
+                tried[-1] = new = replace(trimmed, coverage=reports[-1])
+            trimmed_note = _trim_words(phase, trimmed is new)
     if not new.on_target(problem):
         return chosen, (f"{what} came to {new.build.porosity.percent:.2f}% porosity{trimmed_note}, "
                         "so it was not kept")
@@ -655,6 +653,20 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
     return len(tried) - 1, (f"the layout is that of {what}{trimmed_note}; without them "
                             f"{best.coverage.bare_share_percent:.1f}% was bare")
+
+
+def _trim_words(phase: dict[str, Any] | None, refused: bool) -> str:
+    """What the trim of the attempt with rows came to, for :func:`covered_attempt`'s words."""
+    if phase is None:
+        return "; no time was left to move blocks into the design prism"
+    if not refused:
+        return (f" ({phase['moved']} of its blocks moved into the design prism took it from "
+                f"{phase['porosity_before_percent']:.2f}%)")
+    if not phase["moved"]:
+        return "; no block that carries nothing came to rest in a pocket holding more of it inside"
+    fell = ", but then it did not stand" if phase["stood"] is False else ""
+    return (f"; {phase['moved']} of its blocks moved into the design prism took it to "
+            f"{phase['porosity_percent']:.2f}%{fell}")
 
 
 def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int, end: float
