@@ -639,9 +639,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             trimmed, phase = trim_repair(problem, new, rng, len(tried), end, better)
             if phase is not None:
                 new.phases.append(phase)
-            if trimmed is not new:
+            adopted = trimmed is not new
+            if adopted:
                 tried[-1] = new = replace(trimmed, coverage=reports[-1])
-            trimmed_note = _trim_words(phase, trimmed is new)
+            trimmed_note = _trim_words(phase, adopted)
     if not new.on_target(problem):
         return chosen, (f"{what} came to {new.build.porosity.percent:.2f}% porosity{trimmed_note}, "
                         "so it was not kept")
@@ -655,11 +656,12 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                             f"{best.coverage.bare_share_percent:.1f}% was bare")
 
 
-def _trim_words(phase: dict[str, Any] | None, refused: bool) -> str:
-    """What the trim of the attempt with rows came to, for :func:`covered_attempt`'s words."""
+def _trim_words(phase: dict[str, Any] | None, adopted: bool) -> str:
+    """What the trim of the attempt with rows came to (``adopted``: the trimmed layout replaced
+    it), for :func:`covered_attempt`'s words."""
     if phase is None:
         return "; no time was left to move blocks into the design prism"
-    if not refused:
+    if adopted:
         return (f" ({phase['moved']} of its blocks moved into the design prism took it from "
                 f"{phase['porosity_before_percent']:.2f}%)")
     if not phase["moved"]:

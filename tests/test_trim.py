@@ -93,10 +93,10 @@ def test_a_trimmed_layout_is_written_only_once_it_stands(rough):
 def test_what_came_of_the_trim_in_words():
     """The coverage attempt's note says why an attempt over its window was or was not kept."""
     phase = {"moved": 3, "porosity_before_percent": 57.391, "porosity_percent": 56.952, "stood": True}
-    assert api._trim_words(None, True) == "; no time was left to move blocks into the design prism"
-    assert api._trim_words(phase, False) == (
+    assert api._trim_words(None, False) == "; no time was left to move blocks into the design prism"
+    assert api._trim_words(phase, True) == (
         " (3 of its blocks moved into the design prism took it from 57.39%)")
-    assert api._trim_words({**phase, "porosity_percent": 57.2, "stood": None}, True) == (
+    assert api._trim_words({**phase, "porosity_percent": 57.2, "stood": None}, False) == (
         "; 3 of its blocks moved into the design prism took it to 57.20%")
-    assert api._trim_words({**phase, "stood": False}, True).endswith("56.95%, but then it did not stand")
-    assert "no block that carries nothing" in api._trim_words({**phase, "moved": 0}, True)
+    assert api._trim_words({**phase, "stood": False}, False).endswith("56.95%, but then it did not stand")
+    assert "no block that carries nothing" in api._trim_words({**phase, "moved": 0}, False)
