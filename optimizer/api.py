@@ -389,9 +389,7 @@ def optimize(
     tried: list[_Attempt] = []
     for attempt in range(1, ATTEMPTS + 1):
         tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
-        # Another attempt only while every one so far is short of its count or does not stand,
-        # and the last one's time is left before the search's deadline.
-        if tried[-1].reached(problem) or clock() + tried[-1].seconds > problem.deadline:
+        if not tried[-1].another(problem, clock()):
             break
     chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
     if settle_layout:
@@ -475,7 +473,8 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
 
 
 #: Searches a run may make: when one ends short of the required count (or with a layout that
-#: does not stand) with its own time still left before the deadline, the pipeline runs again
+#: does not stand) with the time its search took still left before the deadline
+#: (:meth:`_Attempt.another`), the pipeline runs again
 #: from the start on the same random stream, and the best layout of all is kept. The first
 #: attempt is the whole run wherever the count is reached.
 ATTEMPTS = 3
@@ -494,9 +493,19 @@ class _Attempt:
     seconds: float = 0.0
     coverage: CoverageReport | None = None
     searched: int | None = None  # blocks before the confirming settle
+    search_seconds: float = 0.0  # the strategies' time, before the confirming settle
 
     def reached(self, problem: Problem) -> bool:
         return len(self.build) >= problem.required and self.stable is not False
+
+    def another(self, problem: Problem, now: float) -> bool:
+        """Whether to search again after this attempt: it is short of its count or does not
+        stand, and its search fits again between ``now`` and the search's deadline. Its search
+        only: the deadline keeps a reserve for the confirming settle, and the refills that
+        follow a short search are not needed by one that reaches the count. (Counting them, a
+        first attempt on ``wall-shake`` that ended short had its refills use the time a second
+        one needed, on a loaded machine.)"""
+        return not self.reached(problem) and now + self.search_seconds <= problem.deadline
 
     def on_target(self, problem: Problem) -> bool:
         """Reached, and its porosity within ``TARGET_POINTS`` of the target."""
@@ -536,8 +545,9 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                    "optimal": s.optimal, "candidates": s.candidates, "seconds": s.seconds}
     build = phase.build if phase is not None else Build(scene)
     origin = phase.origin if phase else None
+    search_seconds = clock() - start
     if not settle_layout or (all_or_nothing and len(build) < problem.required):
-        return _Attempt(build, phases, gap, {}, None, clock() - start)
+        return _Attempt(build, phases, gap, {}, None, clock() - start, search_seconds=search_seconds)
     searched = len(build)
     build, confirmation = confirm(problem, build, rng, origin, end, whole=all_or_nothing)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
@@ -565,7 +575,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         build, confirmation = again, check
         searched = max(searched, len(more))
     return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, clock() - start,
-                    searched=searched)
+                    searched=searched, search_seconds=search_seconds)
 
 
 def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,

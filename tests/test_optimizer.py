@@ -452,6 +452,22 @@ def test_a_run_short_of_its_count_tries_again_and_keeps_the_best(tiny):
     assert len({round(p, 9) for p in porosities}) > 1 or len(set(counts)) > 1
 
 
+def test_another_attempt_needs_only_the_last_ones_search_time(tiny):
+    """An attempt short of its count is followed by another where its search, not its settles
+    and refills, fits again before the deadline; one that reaches the count, or whose search
+    would not fit, is the last."""
+    from optimizer.api import _Attempt
+    from optimizer.search.build import Build
+
+    # 50 s in all, 20 of them its search: the refills after a short search took the rest.
+    short = _Attempt(Build(tiny), [], {}, {}, True, seconds=50.0, search_seconds=20.0)
+    at = replace(problem(tiny), deadline=80.0)
+    assert short.another(at, now=50.0)  # 50 + 20 <= 80, though 50 + 50 is not
+    assert not short.another(at, now=61.0)  # 61 + 20 > 80
+    assert replace(short, stable=False).another(at, now=50.0)  # a layout that falls: again too
+    assert not short.another(replace(at, required=0), now=0.0)  # the count reached: the last
+
+
 def test_optimize_result_is_valid_on_tiny(tiny):
     """The pipeline with the bound step (beam, fill, anneal, CP-SAT, settle) on a 25-block, 4 m slice of mini.
 
