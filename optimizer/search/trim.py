@@ -88,10 +88,12 @@ def trim_moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Ge
     stats = TrimStats(porosity_before_percent=build.porosity.percent, porosity_percent=build.porosity.percent)
     build = build.copy()
     fruitless = 0
+    refused: set[int] = set()  # blocks whose move ``keep`` refused: not tried again
     while stats.moved < MOVES and fruitless < PATIENCE:
         if over(problem, build) <= 0 or problem.time_left() <= 0:
             break
-        outside = {k: block.volume - build.porosity.contribution(k) for k in build.free_keys()}
+        outside = {k: block.volume - build.porosity.contribution(k) for k in build.free_keys()
+                   if k not in refused}
         moved = None
         for key in sorted(outside, key=lambda k: -outside[k])[:BLOCKS_TRIED]:
             if outside[key] < MIN_GAIN * block.volume or problem.time_left() <= 0:
@@ -118,6 +120,8 @@ def trim_moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Ge
                 trial.place(rested)
                 if keep is None or keep(trial):
                     moved = trial
+                else:
+                    refused.add(key)
                 break
             if moved is not None:
                 break
