@@ -21,9 +21,9 @@ The pipeline, each step a pluggable strategy instance:
 4. a physics settle confirms that the layout stands; unstable blocks are
    repaired (taken out, with whatever rests on them, and placed again) and
    the layout is settled again;
-5. if the layout is still short of its count and the time it took is left
-   before the deadline, steps 1-4 run again on the same random stream (up to
-   ``ATTEMPTS`` in all), and the best layout is kept;
+5. if the layout is still short of its count (or does not stand) and the time
+   its search took is left before the deadline, steps 1-4 run again on the
+   same random stream (up to ``ATTEMPTS`` in all), and the best layout is kept;
 6. if the best layout reaches its count and stands but is over its porosity
    window, blocks that stick out of the design prism are moved into pockets
    inside it (:func:`trim_repair`, ``search.trim``);
@@ -547,7 +547,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     origin = phase.origin if phase else None
     search_seconds = clock() - start
     if not settle_layout or (all_or_nothing and len(build) < problem.required):
-        return _Attempt(build, phases, gap, {}, None, clock() - start, search_seconds=search_seconds)
+        return _Attempt(build, phases, gap, {}, None, search_seconds, search_seconds=search_seconds)
     searched = len(build)
     build, confirmation = confirm(problem, build, rng, origin, end, whole=all_or_nothing)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the

@@ -24,7 +24,7 @@ of the grid is lowered at, and before each candidate is let go and measured).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -63,8 +63,7 @@ class CoverStats:
     bare_share_percent: float | None = None
 
     def to_dict(self) -> dict:
-        return {"moved": self.moved, "tried": self.tried, "bare_before_percent": self.bare_before_percent,
-                "bare_share_percent": self.bare_share_percent}
+        return asdict(self)
 
 
 class BareArea:

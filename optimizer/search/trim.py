@@ -33,7 +33,7 @@ one result; the deadline only stops it early.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
@@ -66,9 +66,7 @@ class TrimStats:
     porosity_percent: float | None = None
 
     def to_dict(self) -> dict:
-        return {"moved": self.moved, "tried": self.tried,
-                "porosity_before_percent": self.porosity_before_percent,
-                "porosity_percent": self.porosity_percent}
+        return asdict(self)
 
 
 def over(problem: Problem, build: Build) -> float:
