@@ -229,6 +229,33 @@ def test_origin_scans_reach_the_tetrapod_count():
     assert best.inside_volume >= worst.inside_volume
 
 
+def test_origins_of_the_covering_attempt_are_ranked_by_coverage():
+    """:func:`rank_by_coverage` puts first the best origin by volume of each of ``n`` x (across
+    the crest), ordered by the count their pattern alone places, then how it covers; the rest
+    keep their order, as do all once its time is up."""
+    from geometry.coverage import coverage
+    from optimizer.search.build import Build
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import pattern_pass, rank_by_coverage
+
+    scene = load_scene("mini")
+    prob = problem(scene)
+    shapes = ShapeCache(scene.block)
+    origins = [(x, 0.5) for x in (0.0, 0.3, 0.6, 0.9, 1.2)] + [(0.0, 1.0)]
+    ranked = rank_by_coverage(prob, shapes, Build(scene), origins, 4, float("inf"))
+    assert sorted(ranked) == sorted(origins)
+    assert set(ranked[:4]) == set(origins[:4]) and ranked[4:] == origins[4:]
+
+    def key(origin):
+        b = pattern_pass(prob, shapes, Build(scene), origin)
+        report = coverage(scene, b.placed())
+        return -min(len(b), scene.required_blocks), -report.aims_met(), report.bare_share_percent
+
+    keys = [key(o) for o in ranked[:4]]
+    assert keys == sorted(keys) and ranked[:4] != origins[:4]  # these four were not in that order
+    assert rank_by_coverage(prob, shapes, Build(scene), origins, 4, -1.0) == origins
+
+
 def test_lattice_with_upper_layer_round_trips_through_json(tmp_path):
     from dataclasses import asdict
 

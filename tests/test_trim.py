@@ -65,7 +65,7 @@ def test_a_move_the_caller_refuses_is_not_made(rough):
         return False
 
     # Seed 3 offers a refused block again in a later round where nothing stops it (62, 63, 62 at 795a2c9).
-    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(3), refuse)
+    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(3), [refuse])
     assert len(seen) >= 2 and min(seen) < build.porosity.percent  # it had moves to offer
     assert stats.moved == 0 and trimmed.porosity.percent == build.porosity.percent
     assert all(len(t) == 1 for t in taken)
@@ -105,3 +105,24 @@ def test_what_came_of_the_trim_in_words():
         "; 3 of its blocks moved into the design prism took it to 57.20%")
     assert api._trim_words({**phase, "stood": False}, False).endswith("56.95%, but then it did not stand")
     assert "no block that carries nothing" in api._trim_words({**phase, "moved": 0}, False)
+
+
+def test_a_looser_rule_takes_over_once_the_strict_one_finds_no_more(rough):
+    """The caller's rules in turn (the coverage attempt: keep its aims, then only cover better):
+    the second is asked only after the first has found no move, and its moves are made."""
+    scene, build = rough
+    asked = []
+
+    def strict(candidate: Build) -> bool:
+        asked.append("strict")
+        return False
+
+    def loose(candidate: Build) -> bool:
+        asked.append("loose")
+        return True
+
+    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(1),
+                                     [strict, loose])
+    assert asked[0] == "strict" and "loose" in asked
+    assert asked.index("loose") > len(asked) - 1 - asked[::-1].index("strict")  # strict is done by then
+    assert stats.moved == asked.count("loose") >= 1 and trim.over(problem(scene), trimmed) == 0

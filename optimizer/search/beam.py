@@ -39,7 +39,7 @@ from .drop import Shape
 from .hangings import free, hanging_of
 from .problem import TARGET_POINTS, Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
-from .sites import laid_sites, pattern_sites, rank_origins
+from .sites import laid_sites, pattern_sites, rank_by_coverage, rank_origins
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
@@ -48,6 +48,10 @@ ACCEPT_CHECKS = 3
 #: Beam budget (s) from which origins are ranked in full: ``shoha optimize``'s
 #: default 120 s limit gives the beam about 80 s.
 RANK_SECONDS = 60.0
+#: With :meth:`BeamSearch.covering`, the origins best by volume ranked again by coverage, and the
+#: share of the beam's time that may take.
+COVER_RANK = 8
+COVER_RANK_SHARE = 0.1
 #: With :meth:`BeamSearch.against_wall`, a pattern block that stands less than this many block
 #: heights from a wall is set down against it: the coverage's own distance (H/2), so no strip of
 #: crest that wide is left between the pattern and the wall. On ``wall-shake`` the top row stood
@@ -218,6 +222,7 @@ class BeamSearch(Strategy):
         self.judge = judge
         self.around_all = False
         self.to_wall = False
+        self.cover_rank = 0
 
     def against_wall(self) -> BeamSearch:
         """The same search, with the pattern's blocks that stand within ``WALL_GAP_H`` of a wall
@@ -232,6 +237,14 @@ class BeamSearch(Strategy):
         around blocks placed before it, such as the toe rows."""
         other = copy.copy(self)
         other.around_all = True
+        return other
+
+    def covering(self, origins: int = COVER_RANK) -> BeamSearch:
+        """The same search, its best ``origins`` by volume ranked again by how well their
+        pattern alone covers the mound (:func:`rank_by_coverage`), for the attempt that aims
+        to cover."""
+        other = copy.copy(self)
+        other.cover_rank = origins
         return other
 
     # --- candidates ------------------------------------------------------------
@@ -303,6 +316,9 @@ class BeamSearch(Strategy):
             cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n,
                                    self._laid(start))
+            if self.cover_rank:
+                origins = rank_by_coverage(problem, shapes, start, origins, self.cover_rank,
+                                           problem.now() + COVER_RANK_SHARE * budget, self._laid(start))
         best: tuple | None = None
         tried = 0
         runs = 0

@@ -13,6 +13,8 @@ from collections.abc import Collection
 import numpy as np
 from scipy.spatial import cKDTree
 
+from geometry.coverage import coverage
+
 from .build import Build
 from .problem import Problem
 from .shapes import ShapeCache
@@ -67,6 +69,35 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
             trial((float(best[0]), float(best[1])))
     scored.sort()
     return [o for _, _, o in scored]
+
+
+def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins: list[tuple[float, float]],
+                     n: int, stop: float, laid: Collection[int] | None = None) -> list[tuple[float, float]]:
+    """``origins`` (ranked by volume, best first) with ``n`` of them put first, ranked by how
+    their pattern alone covers: the pass that places more of the count first, then the one
+    that covers better (:meth:`geometry.coverage.CoverageReport.better_than`), then the
+    volume's order.
+
+    Which rows of the pattern stand nearest the crest's edges and the toes depends on the
+    origin across the crest (x), so the ``n`` are the best by volume of each x. On ``mini``
+    with toe rows laid (seed 1), the best origins by volume shared one x and left 8.5 to
+    11.8 % of the surface bare after the beam search; passes from other x within 0.2 points
+    of porosity left 4.0 to 11.1 % bare. Passes stop at ``stop``; origins not reached by
+    then keep their order.
+    """
+    firsts: dict[float, int] = {}
+    for i, (x, _) in enumerate(origins):
+        firsts.setdefault(round(x, 3), i)
+    chosen = sorted(firsts.values())[:n]
+    scored = []
+    for i in chosen:
+        if problem.now() > stop:
+            break
+        b = pattern_pass(problem, shapes, start, origins[i], stop, laid)
+        report = coverage(problem.scene, b.placed())
+        scored.append((-min(len(b), problem.required), -report.aims_met(), report.bare_share_percent, i))
+    first = [i for *_, i in sorted(scored)]
+    return [origins[i] for i in first] + [o for i, o in enumerate(origins) if i not in set(first)]
 
 
 def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple[float, float],

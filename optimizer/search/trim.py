@@ -32,7 +32,7 @@ one result; the deadline only stops it early.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -75,17 +75,30 @@ def over(problem: Problem, build: Build) -> float:
 
 
 Accept = Callable[[Problem, Build, Candidate], Candidate | None]
+Keep = Callable[[Build], bool]
 
 
 def trim_moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Generator,
-               keep: Callable[[Build], bool] | None = None) -> tuple[Build, TrimStats]:
+               keeps: Sequence[Keep] = ()) -> tuple[Build, TrimStats]:
     """Move free blocks from outside the prism to pockets inside while the porosity is over
-    its window; returns a new build (``build`` is not changed)."""
+    its window; returns a new build (``build`` is not changed).
+
+    ``keeps`` are the caller's rules, strictest first: the moves go on under each in turn
+    while the porosity is still over its window once the one before has found no more
+    (none: every move is kept)."""
+    stats = TrimStats(porosity_before_percent=build.porosity.percent, porosity_percent=build.porosity.percent)
+    build = build.copy()
+    for keep in keeps or [None]:
+        build = _moves(problem, build, accept, rng, keep, stats)
+    return build, stats
+
+
+def _moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Generator, keep: Keep | None,
+           stats: TrimStats) -> Build:
+    """The moves under one of the caller's rules (:func:`trim_moves`): the build after them."""
     block = problem.scene.block
     shapes = ShapeCache(block)
     window = fill_window(problem.scene)
-    stats = TrimStats(porosity_before_percent=build.porosity.percent, porosity_percent=build.porosity.percent)
-    build = build.copy()
     fruitless = 0
     refused: set[int] = set()  # blocks whose move ``keep`` refused: not tried again
     while stats.moved < MOVES and fruitless < PATIENCE:
@@ -132,4 +145,4 @@ def trim_moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Ge
         stats.moved += 1
         stats.porosity_percent = build.porosity.percent
         problem.tell("trim", build, f"{stats.moved} moved, porosity {build.porosity.percent:.2f}%")
-    return build, stats
+    return build
