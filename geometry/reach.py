@@ -31,6 +31,7 @@ tried), nor a smaller largest bare distance than ``max_bare_m``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -81,8 +82,13 @@ class CoverageFloor:
         return self.bare_share_percent > AIM_BARE_PERCENT or self.max_bare_m > AIM_MAX_BARE_H * block_height
 
     def to_dict(self) -> dict[str, Any]:
-        return {"bare_share_percent": self.bare_share_percent, "max_bare_m": self.max_bare_m,
-                "worst_point": list(self.worst_point), "toe_m": self.toe_m,
+        """The ``coverage_floor`` object; where no block fits in the zone, the distances are
+        infinite, and given as null (JSON has no infinity)."""
+        empty = not math.isfinite(self.max_bare_m)
+        return {"bare_share_percent": self.bare_share_percent,
+                "max_bare_m": None if empty else self.max_bare_m,
+                "worst_point": None if empty else list(self.worst_point),
+                "toe_m": self.toe_m if math.isfinite(self.toe_m) else None,
                 "orientations": self.orientations}
 
 

@@ -597,10 +597,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     the design prism, and the attempt often came to 57.1-57.6 %, over the
     window: one that reaches its count, stands and covers better is then
     trimmed (:func:`trim_repair`), each move kept first only while it meets
-    as many coverage aims as before, then while it stays better covered. Appends the attempt to ``tried`` and returns
-    the index of the one to keep, the new one if it reaches its count and
-    porosity too and covers better, with what came of it in words (None
-    where the layout covers).
+    as many coverage aims as before, then while it stays better covered.
+    Appends the attempt to ``tried`` and returns the index of the one to
+    keep, the new one if it reaches its count and porosity too and covers
+    better, with what came of it in words (None where the layout covers).
     """
     clock = problem.clock
     best = tried[chosen]

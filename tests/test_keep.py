@@ -136,3 +136,13 @@ def test_kept_layout_laid_from_the_pattern_is_continued_along_it(mini, partial):
     xy = np.array([(x, y) for _, _, x, y in sites])[sorted(taken)]
     kept_xy = np.array([build.poses[k].position[:2] for k in build.kept])
     assert np.abs(np.sort(xy, axis=0) - np.sort(kept_xy, axis=0)).max() < 0.5
+
+
+def test_a_whole_layout_kept_gains_no_block(mini):
+    """Kept blocks that hold the count already: nothing is added (a block more made the layout
+    invalid, at 76 of 75), and the layout is valid as it was."""
+    ref = read_layout(REFERENCE).blocks
+    assert len(ref) == mini.required_blocks
+    result = optimize(mini, seed=1, time_limit=30.0, keep=ref, settle_layout=False, cover=False)
+    assert result.blocks == mini.required_blocks and result.valid
+    assert [p.pose for p in result.layout.blocks] == [p.pose for p in ref]

@@ -672,3 +672,18 @@ def test_a_shortfall_in_words():
         "the time ran out (limit 120 s): a longer --time-limit may place more")
     assert shortfall([room], 75, 75, 120.0, kept=False) is None
     assert shortfall([{"strategy": "beam"}], 75, 57, 120.0, kept=False) is None
+
+
+def test_a_mound_shorter_than_a_block_gets_no_block_and_no_error(tmp_path):
+    """A mound 0.3 m long for a 1.66 m block: the window where a block's centroid may fall is
+    empty (it was a reversed range, and the beam's random drop raised), so nothing is placed."""
+    from optimizer.search.build import fill_window
+
+    path = tmp_path / "slice.toml"
+    path.write_text('block = "shake-4t"\n[design]\ncrest_width_m = 4.0\nheight_m = 3.0\n'
+                    'slope_rise_run = [3.0, 4.0]\nlength_m = 0.3\n')
+    scene = load_scene(path)
+    (x0, x1), (y0, y1) = fill_window(scene)
+    assert x0 <= x1 and y0 <= y1
+    result = optimize(scene, seed=1, time_limit=5.0, settle_layout=False, cover=False)
+    assert result.blocks == 0 and result.collisions == 0

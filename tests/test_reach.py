@@ -73,3 +73,15 @@ def test_scene_info_floor(tmp_path):
     text = shoha("scene", "info", "mini", "--floor").stdout
     assert "coverage floor: 0.0% of the slopes and crest" in text and "does not rule" in text
     assert "coverage_floor" not in json.loads(shoha("scene", "info", "mini", "--json").stdout)
+
+
+def test_scene_info_floor_where_no_block_fits(tmp_path):
+    """A mound too small for one Shake Block: every point is bare, no distance is finite, and
+    ``--json`` gives null for them (JSON has no infinity) rather than failing."""
+    path = tmp_path / "tiny.toml"
+    path.write_text('block = "shake-4t"\n[design]\ncrest_width_m = 1.0\nheight_m = 1.0\n'
+                    'slope_rise_run = [1.0, 1.0]\nlength_m = 2.0\n')
+    floor = json.loads(shoha("scene", "info", str(path), "--floor", "--json").stdout)["coverage_floor"]
+    assert floor["bare_share_percent"] == 100.0
+    assert floor["max_bare_m"] is None and floor["worst_point"] is None and floor["toe_m"] is None
+    assert "no block fits inside the zone" in shoha("scene", "info", str(path), "--floor").stdout

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import click
@@ -61,9 +62,10 @@ def scene_info(scene_name: str, floor: bool, as_json: bool) -> None:
         h = s.block.height
         verdict = ("so no layout of this block can meet the coverage aims" if f.rules_out(h)
                    else "which does not rule the coverage aims out")
+        farthest = (f"the point ({f.worst_point[0]:.2f}, z {f.worst_point[1]:.2f}) {f.max_bare_m:.2f} m "
+                    "from one" if math.isfinite(f.max_bare_m) else "no block fits inside the zone at all")
         human += (f"\ncoverage floor: {f.bare_share_percent:.1f}% of the slopes and crest lies over "
-                  f"H/2 = {h / 2:.2f} m from any block inside the tolerance zone, and the point "
-                  f"({f.worst_point[0]:.2f}, z {f.worst_point[1]:.2f}) {f.max_bare_m:.2f} m from one "
+                  f"H/2 = {h / 2:.2f} m from any block inside the tolerance zone, and {farthest} "
                   f"(aims: at most {AIM_BARE_PERCENT:g}%, within H = {h:.2f} m), {verdict}, "
                   f"to the {f.orientations} orientations tried")
     emit(payload, as_json, human)

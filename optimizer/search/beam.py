@@ -352,7 +352,9 @@ class BeamSearch(Strategy):
                 rng: np.random.Generator, end: float) -> tuple[Build, int]:
         """One beam search from one pattern origin; returns the best build and candidates tried."""
         sites = pattern_sites(problem, origin)
-        beams = [_Beam(start, 0.0, laid_sites(problem, start, sites, self._laid(start)))]
+        # A start that holds the count already (``--keep`` with a whole layout) is done.
+        beams = [_Beam(start, 0.0, laid_sites(problem, start, sites, self._laid(start)),
+                       len(start) >= problem.required)]
         tried = 0
         while any(not b.done for b in beams) and problem.now() < end:
             expanded: list[tuple[float, int, _Beam, Candidate | None, int | None]] = []

@@ -301,11 +301,15 @@ def fill_window(scene: Scene) -> tuple[tuple[float, float], tuple[float, float]]
 
     Its footprint must fit under the slope at half its height and inside the
     ends: a window narrower than the zone's base, so that random drops are
-    not wasted on corners no block fits. Returns ``((xmin, xmax), (ymin, ymax))``.
+    not wasted on corners no block fits. Returns ``((xmin, xmax), (ymin, ymax))``;
+    where the block is too big for the zone, a range shrinks to the zone's middle
+    (drops there are refused as any others are, and the search places nothing).
     """
     z = scene.tolerance
     h = scene.block.height
     run = (z.bottom_half_width - z.top_half_width) / z.height
-    half = z.bottom_half_width - run * h / 2 - 0.3 * h
-    inset = 0.45 * h
-    return (-half, half), (z.y_start + inset, z.y_end - inset)
+    half = max(0.0, z.bottom_half_width - run * h / 2 - 0.3 * h)
+    ys = (z.y_start + 0.45 * h, z.y_end - 0.45 * h)
+    if ys[0] > ys[1]:
+        ys = ((z.y_start + z.y_end) / 2,) * 2
+    return (-half, half), ys
