@@ -474,8 +474,13 @@ def mesh_block(path: str, name: str | None = None) -> Block:
             mesh.invert()
         else:
             raise InputError(f"{path}: mesh encloses no volume")
-    solid = _manifold(mesh.vertices, mesh.faces, path)
     centroid = np.asarray(mesh.center_mass)
+    if not rest_poses(mesh.vertices - centroid):
+        # Placement hangs a block as it rests on flat ground; a rounded solid has no such
+        # pose (an ellipsoid's hull facets all tip), and its search had no hanging at all.
+        raise InputError(f"{path}: the block rests stably on none of its faces (each tips under "
+                         f"{MIN_TIP_DEG:g} degree), so a crane cannot set it down in a known pose")
+    solid = _manifold(mesh.vertices, mesh.faces, path)
     solid = solid.translate(-centroid)
     pieces = _facet_pieces(mesh.vertices - centroid, mesh.faces, solid, digest)
     if pieces is None:

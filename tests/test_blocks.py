@@ -183,6 +183,17 @@ def test_open_mesh_is_an_input_error(tmp_path):
         mesh_block(str(path))
 
 
+def test_a_block_with_no_stable_face_is_an_input_error(tmp_path):
+    """A rounded solid (a finely tessellated ellipsoid: every hull facet tips) has no pose a
+    crane sets it down in; it had no hanging, and ``shoha optimize`` raised an IndexError."""
+    mesh = trimesh.creation.icosphere(subdivisions=4)
+    mesh.apply_scale([0.8, 0.6, 0.5])
+    path = tmp_path / "ellipsoid.stl"
+    mesh.export(path)
+    with pytest.raises(InputError, match="rests stably on none of its faces"):
+        mesh_block(str(path))
+
+
 def test_a_mesh_file_whose_text_is_not_utf8_loads(tmp_path):
     """A maker's OBJ with a Latin-1 comment is a good mesh: trimesh decodes its text with
     charset-normalizer (a dependency for that)."""
