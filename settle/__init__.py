@@ -14,6 +14,7 @@ backend.
 from .base import (
     DEFAULT_SECONDS,
     BlockSettle,
+    Diverged,
     Run,
     SettleBackend,
     SettleBody,
@@ -27,6 +28,7 @@ from .run import default_backend, settle
 __all__ = [
     "DEFAULT_SECONDS",
     "BlockSettle",
+    "Diverged",
     "MujocoBackend",
     "PymunkBackend",
     "Run",

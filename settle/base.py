@@ -101,6 +101,12 @@ class SettleBody(NamedTuple):
     angular_velocity: np.ndarray
 
 
+class Diverged(RuntimeError):
+    """The engine's state became non-finite: the bodies' contacts were more than it could
+    resolve (a block wedged between a wall and rough ground). The scene is not wrong; this
+    one settle gave no answer."""
+
+
 @dataclass(frozen=True)
 class Run:
     """What a backend returns: where the free blocks ended up.
@@ -256,7 +262,7 @@ class SettleBackend(abc.ABC):
              progress: Progress | None) -> tuple[int, bool, float]:
         """The loop every backend shares: step, report progress, stop once at rest.
 
-        ``advance(n)`` runs ``n`` steps and raises ``RuntimeError`` if the
+        ``advance(n)`` runs ``n`` steps and raises :class:`Diverged` if the
         engine diverged; ``observe()`` gives the free blocks' positions,
         quaternions, velocities and angular velocities (world frame) for a
         :class:`RestMonitor`. Checks every ``check_every`` steps; returns the

@@ -90,7 +90,7 @@ from geometry.constants import GRAVITY, tol
 from geometry.pose import Pose
 from geometry.scene import Scene
 
-from .base import Progress, Run, SettleBackend, SettleBody
+from .base import Diverged, Progress, Run, SettleBackend, SettleBody
 from .section import foundation_profile
 
 #: Thickness of the static foundation box below z = 0, and of the solid part
@@ -330,7 +330,7 @@ class MujocoBackend(SettleBackend):
         if full:
             raise RuntimeError(f"MuJoCo ran out of contact memory at step {steps}; raise ARENA_PER_BLOCK")
         if data.warning[w.mjWARN_BADQACC].number or not np.isfinite(data.qpos).all():
-            raise RuntimeError(f"MuJoCo diverged at step {steps} (non-finite accelerations)")
+            raise Diverged(f"MuJoCo diverged at step {steps} (non-finite accelerations)")
 
 
 def free_order(bodies: Sequence[SettleBody]) -> list[int]:

@@ -44,7 +44,7 @@ from geometry.constants import GRAVITY
 from geometry.errors import InputError
 from geometry.scene import Scene
 
-from .base import Progress, Run, SettleBackend, SettleBody
+from .base import Diverged, Progress, Run, SettleBackend, SettleBody
 from .section import foundation_profile, from_plane, outlines, to_plane
 
 #: Depth of the static foundation below its top, and its margin past the
@@ -185,7 +185,7 @@ class PymunkBackend(SettleBackend):
             state = np.array([(*b.velocity, b.angular_velocity, *b.position, b.angle)
                               for b in free]).reshape(-1, 6)
             if not np.isfinite(state).all():
-                raise RuntimeError(f"pymunk diverged at step {done[0]} (non-finite state)")
+                raise Diverged(f"pymunk diverged at step {done[0]} (non-finite state)")
             zeros = np.zeros(len(free))
             v = np.column_stack([state[:, 0], zeros, state[:, 1]])
             w = np.column_stack([zeros, -state[:, 2], zeros])

@@ -305,3 +305,33 @@ def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
     # No time for that verdict (one settle would fit, not two): as it failed, within the end.
     assert runs[False, 0.06] == (False, 2, 1, True)
     assert runs[False, 0.01] == (False, 2, 1, True)
+
+
+def test_a_candidate_whose_settle_diverges_is_refused(monkeypatch):
+    """The engine diverging on one block let go (a box wedged between a wall and rough ground
+    did, in the pocket fill) refuses that candidate, as one that does not come to rest; it
+    ended the whole run with a traceback."""
+    from optimizer.search import physics
+    from optimizer.search.shapes import ShapeCache
+    from settle import Diverged
+
+    scene = load_scene("mini")
+    build = Build(scene)
+    shape = ShapeCache(scene.block).hung(scene_families(scene)[0], 0.0)
+    c = build.lower(shape, 0.0, scene.length / 2)
+    assert c is not None and physics.settle_in(problem(scene), build, c) is not None
+
+    def diverge(*args, **kwargs):
+        raise Diverged("MuJoCo diverged at step 80 (non-finite accelerations)")
+
+    monkeypatch.setattr(physics, "settle", diverge)
+    assert physics.settle_in(problem(scene), build, c) is None
+    rough = load_scene(ROOT / "benchmarks" / "scenes" / "mini-rough.toml")  # seated first, then let go
+    on_rubble = Build(rough).lower(shape, 0.0, rough.length / 2)
+    assert on_rubble is not None and physics.raised_check(problem(rough), Build(rough), on_rubble) is None
+
+
+def scene_families(scene):
+    from optimizer.search.hangings import families
+
+    return families(scene.block)

@@ -28,7 +28,7 @@ import numpy as np
 from geometry.clip import volume_inside
 from geometry.collision import collisions
 from geometry.constants import tol
-from settle import SettleResult, Thresholds, settle
+from settle import Diverged, SettleResult, Thresholds, settle
 
 from .beam import BeamSearch
 from .build import GROUND, Build, Candidate
@@ -69,9 +69,8 @@ def seated(problem: Problem, build: Build, candidate: Candidate) -> Candidate:
     at the same place: it tips onto the bumps without sliding off its site."""
     key = -2
     block = build.block
-    result = settle(problem.scene, [(key, block, candidate.pose)], seconds=LOCAL_SECONDS, seed=0,
-                    movable={key}, thresholds=LOCAL_THRESHOLDS)
-    if result.stable or not result.at_rest:
+    result = _let_go(problem, [(key, block, candidate.pose)], key)
+    if result is None or result.stable or not result.at_rest:
         return candidate
     x, y = candidate.pose.position[:2]
     again = build.lower(Shape.of(block, result.poses[key].quaternion), float(x), float(y))
@@ -92,8 +91,9 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
     block = build.block
     near = build.collide.neighbours(candidate.pose.position, 2.5 * block.bounding_radius)
     placed = [(k, block, build.poses[k]) for k in near] + [(key, block, candidate.pose)]
-    result = settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
-                    thresholds=LOCAL_THRESHOLDS)
+    result = _let_go(problem, placed, key)
+    if result is None:
+        return None
     if result.stable:
         return None if candidate.loose else candidate
     if not result.at_rest:
@@ -111,6 +111,16 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
         return None
     return Candidate(Shape.of(block, pose.quaternion), pose, support,
                      volume_inside(block, pose, problem.scene.design.polytope))
+
+
+def _let_go(problem: Problem, placed: list, key: int) -> SettleResult | None:
+    """The short settle of block ``key`` let go among fixed ``placed``; None where the engine
+    diverged (the candidate is refused, as one that does not come to rest is)."""
+    try:
+        return settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
+                      thresholds=LOCAL_THRESHOLDS)
+    except Diverged:
+        return None
 
 
 def local_check(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
