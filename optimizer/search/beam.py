@@ -48,8 +48,9 @@ ACCEPT_CHECKS = 3
 #: Beam budget (s) from which origins are ranked in full: ``shoha optimize``'s
 #: default 120 s limit gives the beam about 80 s.
 RANK_SECONDS = 60.0
-#: With :meth:`BeamSearch.covering`, the origins best by volume ranked again by coverage, and the
-#: share of the beam's time that may take.
+#: With :meth:`BeamSearch.covering`, how many origins (the best by volume at each offset across
+#: the crest) are ranked again by coverage, and the share of the beam's time that may take.
+#: Set once, not tuned.
 COVER_RANK = 8
 COVER_RANK_SHARE = 0.1
 #: With :meth:`BeamSearch.against_wall`, a pattern block that stands less than this many block
@@ -240,9 +241,9 @@ class BeamSearch(Strategy):
         return other
 
     def covering(self, origins: int = COVER_RANK) -> BeamSearch:
-        """The same search, its best ``origins`` by volume ranked again by how well their
-        pattern alone covers the mound (:func:`rank_by_coverage`), for the attempt that aims
-        to cover."""
+        """The same search, searched first from up to ``origins`` origins (the best by volume
+        at each offset across the crest) ranked by how well their pattern alone covers the
+        mound (:func:`rank_by_coverage`), for the attempt that aims to cover."""
         other = copy.copy(self)
         other.cover_rank = origins
         return other

@@ -82,8 +82,8 @@ def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins
     origin across the crest (x), so the ``n`` are the best by volume of each x. On ``mini``
     with toe rows laid (seed 1), the best origins by volume shared one x and left 8.5 to
     11.8 % of the surface bare after the beam search; passes from other x within 0.2 points
-    of porosity left 4.0 to 11.1 % bare. Passes stop at ``stop``; origins not reached by
-    then keep their order.
+    of porosity left 4.0 to 11.1 % bare. Passes stop at ``stop``: origins not reached by
+    then keep their order, after the ranked ones (a pass cut short ranks by what it placed).
     """
     firsts: dict[float, int] = {}
     for i, (x, _) in enumerate(origins):
@@ -97,7 +97,8 @@ def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins
         report = coverage(problem.scene, b.placed())
         scored.append((-min(len(b), problem.required), -report.aims_met(), report.bare_share_percent, i))
     first = [i for *_, i in sorted(scored)]
-    return [origins[i] for i in first] + [o for i, o in enumerate(origins) if i not in set(first)]
+    ranked = set(first)
+    return [origins[i] for i in first] + [o for i, o in enumerate(origins) if i not in ranked]
 
 
 def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple[float, float],
