@@ -326,13 +326,14 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
             raise InputError(f"{source}: [design] {key} = {value} m is not a breakwater")
 
     default = Allowance.table_ii(block.height)
-    allowance = Allowance(
-        crest_rise=_num(tol_table, "crest_rise_m", source, default=default.crest_rise, lo=0.0),
-        crest_widening=_num(tol_table, "crest_widening_m", source, default=default.crest_widening, lo=0.0),
-        slope_lengthening=_num(tol_table, "slope_lengthening_m", source,
-                               default=default.slope_lengthening, lo=0.0),
-        end_extension=_num(tol_table, "end_extension_m", source, default=default.end_extension, lo=0.0),
-    )
+    allowed = {}
+    for key in sorted(_TOLERANCE_KEYS):
+        name = key.removesuffix("_m")
+        allowed[name] = _num(tol_table, key, source, default=getattr(default, name), lo=0.0)
+        if allowed[name] > 10_000:
+            raise InputError(f"{source}: [tolerance] {key} = {allowed[name]} m is more than any "
+                             "length shoha takes (10000 m)")
+    allowance = Allowance(**allowed)
 
     target = _num(data, "target_porosity_percent", source, default=56.0, lo=0.0, lo_open=True)
     if target >= 100.0:
@@ -354,7 +355,10 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
         slope=slope, length=length, target_porosity=target, required_blocks=0,
         allowance=allowance, foundation=Foundation(), base_dir=base_dir, wall=wall,
     )
-    zone = scene.tolerance
+    try:
+        zone = scene.tolerance
+    except InputError as exc:
+        raise InputError(f"{source}: {exc}") from None
     margin = 2.0 * block.bounding_radius
     extent = (-zone.bottom_half_width - margin, zone.bottom_half_width + margin,
               zone.y_start - margin, zone.y_end + margin)
@@ -363,6 +367,10 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
         raise InputError(f"{source}: [foundation] cell_m = {cell} m makes too fine a height field")
 
     default_required = math.ceil((1 - target / 100) * scene.design_volume / block.volume - tol.relative)
+    if "required_blocks" not in data and not 0 <= default_required <= 100_000:
+        raise InputError(f"{source}: the design prism ({scene.design_volume:.4g} m³) takes "
+                         f"{default_required} blocks of {block.volume:.4g} m³ at the target porosity; "
+                         "at most 100000 are placed")
     required = data.get("required_blocks", default_required)
     if not isinstance(required, int) or isinstance(required, bool) or not 0 <= required <= 100_000:
         raise InputError(f"{source}: required_blocks must be an integer from 0 to 100000")

@@ -114,6 +114,8 @@ def test_keep_input_errors(tmp_path, partial):
         assert r.returncode == 2, (what, r.stdout, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1, (what, r.stderr)
         assert not out.exists(), what
+        if keep.exists() and keep != partial:
+            assert str(keep) in r.stderr, (what, r.stderr)  # the message names the file
     assert partial.read_bytes() == before
 
 

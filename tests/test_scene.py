@@ -87,6 +87,9 @@ def test_rough_foundation_is_seeded_and_bounded(tmp_path):
         (MINI_TOML + "required_blocks = 1e9\n", "required_blocks"),
         ("this is = = not toml", "malformed TOML"),
         (MINI_TOML + "[foundation]\nkind = 'lava'\n", "flat or rough"),
+        (MINI_TOML + "[tolerance]\nend_extension_m = 1e6\n", r"bad.toml: \[tolerance\] end_extension_m"),
+        (MINI_TOML + "[tolerance]\ncrest_rise_m = 5000\n", "bad.toml: tolerance: slope length"),
+        (MINI_TOML.replace("[3.0, 4.0]", "[1e-9, 4]"), "bad.toml: the design prism .* takes"),
     ],
 )
 def test_bad_scene_files_are_input_errors(text, message):

@@ -87,6 +87,10 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
                                            parse_origin(origin))
         check_same_scene(partial_scene, scene, keep_path)
         keep = partial.blocks
+        other = next((p for p in keep if p.type != scene.block_type), None)
+        if other is not None:  # the file is named here, where it is known
+            raise InputError(f"{keep_path}: kept block {other.id} is a {other.type!r}; the scene places "
+                             f"{scene.block_type!r} (one block type a scene)")
     names = strategy_names + (",cpsat" if bound and "cpsat" not in strategy_names.split(",") else "")
     strategies = _strategies(names)
     with _Progress(scene.required_blocks, scene.target_porosity) as progress:
