@@ -328,10 +328,10 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     default = Allowance.table_ii(block.height)
     allowed = {}
     for key in sorted(_TOLERANCE_KEYS):
-        name = key.removesuffix("_m")
-        allowed[name] = _num(tol_table, key, source, default=getattr(default, name), lo=0.0)
-        if allowed[name] > 10_000:
-            raise InputError(f"{source}: [tolerance] {key} = {allowed[name]} m is more than any "
+        field = key.removesuffix("_m")  # not ``name``: that is the scene's
+        allowed[field] = _num(tol_table, key, source, default=getattr(default, field), lo=0.0)
+        if allowed[field] > 10_000:
+            raise InputError(f"{source}: [tolerance] {key} = {allowed[field]} m is more than any "
                              "length shoha takes (10000 m)")
     allowance = Allowance(**allowed)
 

@@ -122,3 +122,9 @@ def test_rough_foundation_is_the_surface_mujoco_collides_with():
                                        None, 1, -1, geom))
     np.testing.assert_allclose(hit, scene.foundation.height_at(xy), atol=1e-6)
     assert np.ptp(hit) > 0.1  # the ground is rough: the test compares something
+
+
+def test_every_built_in_scene_keeps_its_name():
+    """A loop over the tolerance keys once reused ``name``, and every scene was called
+    ``slope_lengthening``; ``shoha serve`` then refused every reference."""
+    assert [load_scene(n).name for n in builtin_scenes()] == builtin_scenes()
