@@ -208,6 +208,32 @@ def test_second_pass_lays_the_upper_layer():
                                 (scene.tolerance.y_start, scene.tolerance.y_end), (lat.w / 2, lat.p / 2))
 
 
+def test_sites_and_drops_stay_near_the_design_prism_however_wide_the_tolerance_zone():
+    """Allowances of kilometres (a user's typo) leave the search where a block can fill
+    the prism; over the whole zone, listing the sites alone overran a 5 s limit by a
+    minute. Ordinary allowances change nothing."""
+    from geometry.scene import parse_scene
+    from optimizer.search.build import fill_window, search_window
+    from optimizer.search.sites import pattern_sites
+    from tests.test_scene import MINI_TOML
+
+    mini = parse_scene(MINI_TOML, "mini.toml", None)
+    z = mini.tolerance
+    assert search_window(mini) == ((-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end))
+    wide = parse_scene(MINI_TOML + "[tolerance]\nslope_lengthening_m = 5000.0\n"
+                       "end_extension_m = 5000.0\ncrest_widening_m = 3000.0\n", "wide.toml", None)
+    d, r = wide.design, wide.block.bounding_radius
+    assert wide.tolerance.bottom_half_width > 1000 and wide.tolerance.y_end > 1000
+    sites = pattern_sites(problem(wide), (0.0, 0.0))
+    xs, ys = np.array([s[2] for s in sites]), np.array([s[3] for s in sites])
+    assert np.abs(xs).max() <= d.bottom_half_width + r
+    assert ys.min() >= d.y_start - r and ys.max() <= d.y_end + r
+    assert len(sites) < 2 * len(pattern_sites(problem(mini), (0.0, 0.0)))
+    (x0, x1), (y0, y1) = fill_window(wide)
+    assert -d.bottom_half_width - r <= x0 and x1 <= d.bottom_half_width + r
+    assert d.y_start - r <= y0 and y1 <= d.y_end + r
+
+
 def test_origin_scans_reach_the_tetrapod_count():
     """From the best-ranked origin, the pattern alone places all of ``tetrapod``'s blocks.
 

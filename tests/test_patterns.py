@@ -7,8 +7,10 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import optimizer.search.patterns as patterns
@@ -105,6 +107,30 @@ def test_the_staggered_bond_is_feasible(cube, shake):
         lat = staggered(block)
         assert _lattice_penalty(_params(lat), block, (lat.family_a, lat.family_b)) == pytest.approx(
             lat.area_per_block)
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod:2.0", "box:1.6x1.6x1.6"])
+def test_lattice_sites_are_every_lattice_point_in_the_window_and_no_other(name):
+    """The sites are enumerated only over the rows that reach the window; checked against
+    every point of a grid wide enough to hold them all, for skewed and shifted lattices."""
+    lat = lattice_for(get_block(name), name)
+    rng = np.random.default_rng(7)
+    for q in (lat.q, 0.37 * lat.p, -1.9 * lat.p):
+        skewed = replace(lat, q=q, upper=None)
+        for _ in range(4):
+            origin = (float(rng.uniform(-5, 5)), float(rng.uniform(-5, 5)))
+            xr = tuple(sorted(rng.uniform(-9, 9, 2)))
+            yr = tuple(sorted(rng.uniform(-4, 14, 2)))
+            every = []
+            for fam, yaw, du, dv in ((skewed.family_a, skewed.yaw_a, 0.0, 0.0),
+                                     (skewed.family_b, skewed.yaw_b, skewed.u, skewed.v)):
+                for j in range(-60, 61):
+                    for i in range(-400, 401):
+                        x = origin[0] + du + j * skewed.w
+                        y = origin[1] + dv + i * skewed.p + j * skewed.q
+                        if xr[0] <= x <= xr[1] and yr[0] <= y <= yr[1]:
+                            every.append((fam, yaw, x, y))
+            assert sorted(skewed.sites(xr, yr, origin)) == sorted(every)
 
 
 def test_a_tuned_lattice_is_cached_and_reused(tmp_path, monkeypatch):

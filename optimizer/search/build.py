@@ -296,6 +296,20 @@ class Build:
         return np.array([self.poses[k].position[2] for k in self.order])
 
 
+def search_window(scene: Scene) -> tuple[tuple[float, float], tuple[float, float]]:
+    """Where a block's centroid may lie and still fill some of the design prism.
+
+    The tolerance zone's base, but no farther from the design prism's base
+    than the block's bounding radius: a block beyond that fills none of the
+    prism. For a zone of ordinary allowances (a third of H) this is the whole
+    zone; for one a user widened by kilometres, the search would otherwise
+    spend its time on sites that add nothing. Returns ``((xmin, xmax), (ymin, ymax))``.
+    """
+    z, d, r = scene.tolerance, scene.design, scene.block.bounding_radius
+    half = min(z.bottom_half_width, d.bottom_half_width + r)
+    return (-half, half), (max(z.y_start, d.y_start - r), min(z.y_end, d.y_end + r))
+
+
 def fill_window(scene: Scene) -> tuple[tuple[float, float], tuple[float, float]]:
     """Where a block's centroid can lie with the block inside the tolerance zone.
 
@@ -307,9 +321,10 @@ def fill_window(scene: Scene) -> tuple[tuple[float, float], tuple[float, float]]
     """
     z = scene.tolerance
     h = scene.block.height
+    (_, x_end), (y_start, y_end) = search_window(scene)
     run = (z.bottom_half_width - z.top_half_width) / z.height
-    half = max(0.0, z.bottom_half_width - run * h / 2 - 0.3 * h)
-    ys = (z.y_start + 0.45 * h, z.y_end - 0.45 * h)
+    half = max(0.0, min(x_end, z.bottom_half_width - run * h / 2 - 0.3 * h))
+    ys = (max(y_start, z.y_start + 0.45 * h), min(y_end, z.y_end - 0.45 * h))
     if ys[0] > ys[1]:
         ys = ((z.y_start + z.y_end) / 2,) * 2
     return (-half, half), ys

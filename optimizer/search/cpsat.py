@@ -40,7 +40,7 @@ from geometry.collision import CollisionWorld
 from geometry.constants import tol
 from geometry.pose import Pose
 
-from .build import GROUND, Build
+from .build import GROUND, Build, search_window
 from .drop import DropWorld, Shape
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
@@ -135,8 +135,8 @@ class CpSat(Strategy):
         shapes = ShapeCache(scene.block)
         lat = problem.lattice
         ground = DropWorld(scene.foundation)
-        xr = (-scene.tolerance.bottom_half_width, scene.tolerance.bottom_half_width)
-        yr = y_range or (scene.tolerance.y_start, scene.tolerance.y_end)
+        xr, window_y = search_window(scene)
+        yr = y_range or window_y
         out = []
         for origin in origins:
             for fam, yaw, x, y in lat.sites(xr, yr, origin):

@@ -140,20 +140,27 @@ class InterlockLattice:
         row by row, as a crane works along a breakwater.
         """
         out = []
-        reach = int(np.ceil((x_range[1] - x_range[0]) / self.w)) + 2
-        span = int(np.ceil((y_range[1] - y_range[0]) / self.p)) + 2 + int(abs(self.q) * reach / self.p)
         for fam, yaw, du, dv in ((self.family_a, self.yaw_a, 0.0, 0.0),
                                  (self.family_b, self.yaw_b, self.u, self.v)):
             part = []
-            for j in range(-reach, reach + 1):
-                for i in range(-span, span + 1):
-                    x = origin[0] + du + j * self.w
+            # Only the rows and columns that can reach the window (one spare each way for
+            # rounding); the comparisons below decide, so the sites do not depend on it.
+            for j in _steps(x_range, origin[0] + du, self.w):
+                x = origin[0] + du + j * self.w
+                if not x_range[0] <= x <= x_range[1]:
+                    continue
+                for i in _steps(y_range, origin[1] + dv + j * self.q, self.p):
                     y = origin[1] + dv + i * self.p + j * self.q
-                    if x_range[0] <= x <= x_range[1] and y_range[0] <= y <= y_range[1]:
+                    if y_range[0] <= y <= y_range[1]:
                         part.append((fam, yaw, x, y))
             part.sort(key=lambda s: (round(s[2] / self.w), s[3]))
             out += part
         return out
+
+
+def _steps(window: tuple[float, float], start: float, step: float) -> range:
+    """The ``k`` for which ``start + k * step`` may lie in ``window``, with one spare each side."""
+    return range(int(np.floor((window[0] - start) / step)) - 1, int(np.ceil((window[1] - start) / step)) + 2)
 
 
 def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str]) -> float:
@@ -187,6 +194,8 @@ def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str]
     return p * w / 2.0 + 20.0 * max(0.0, short)
 
 
+#: The penalty of a lattice the tuner had no time left to lay: worse than any laid one.
+PAST_END = 1e12
 #: Independent runs of the lattice tuner, each from its own seed, per pair of hangings.
 TUNE_RESTARTS = 1
 #: Under a time budget the runs are raced (successive halving): each round has an equal share
@@ -354,8 +363,17 @@ class _Run:
         if left <= 0:
             return
         end = None if seconds is None else clock() + max(0.0, seconds)
+
+        def penalty(params: np.ndarray) -> float:
+            # The generation's callback ends a run, but a population (21 lattices, each a score
+            # of drops, 0.25 s apiece on a 12-piece torus) is scored first: past the end, the
+            # rest of it are scored as infeasible without being laid.
+            if end is not None and clock() > end:
+                return PAST_END
+            return _lattice_penalty(params, self.block, self.families)
+
         result = differential_evolution(
-            _lattice_penalty, self.bounds, args=(self.block, self.families),
+            penalty, self.bounds,
             seed=self.seed + 1000 * self.rounds, maxiter=left, init=self.population, tol=tol.tuning,
             polish=False, strategy=strategy,
             callback=None if end is None else (lambda *a, **k: clock() > end))

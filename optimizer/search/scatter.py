@@ -15,7 +15,7 @@ import numpy as np
 from geometry.scene import Scene
 from settle import settle
 
-from .build import Build
+from .build import Build, search_window
 from .drop import Shape
 from .hangings import families, hanging_of
 from .patterns import lattice_for
@@ -51,14 +51,14 @@ def scatter(scene: Scene, n: int, seed: int = 0, tries: int = 5000) -> Build:
 
 def _drop(problem: Problem, build: Build, rng: np.random.Generator, n: int, tries: int) -> int:
     """Drop blocks until ``n`` rest or ``tries`` run out; returns the tries left."""
-    zone = problem.scene.tolerance
+    (x_start, x_end), (y_start, y_end) = search_window(problem.scene)
     while len(build) < n and tries > 0:
         tries -= 1
         family = problem.families[int(rng.integers(len(problem.families)))]
         shape = Shape.of(problem.scene.block, hanging_of(problem.scene.block, family,
                                                          float(rng.uniform(0, 2 * np.pi))))
-        x = rng.uniform(-zone.bottom_half_width, zone.bottom_half_width)
-        y = rng.uniform(zone.y_start, zone.y_end)
+        x = rng.uniform(x_start, x_end)
+        y = rng.uniform(y_start, y_end)
         c = build.lower(shape, float(x), float(y))
         c = settle_in(problem, build, c) if c is not None else None
         if c is not None:

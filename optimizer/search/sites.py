@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from geometry.coverage import coverage
 
-from .build import Build
+from .build import Build, search_window
 from .problem import Problem
 from .shapes import ShapeCache
 
@@ -133,7 +133,7 @@ def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[s
     for taller mounds).
     """
     z = problem.scene.tolerance
-    xr, yr = (-z.bottom_half_width, z.bottom_half_width), (z.y_start, z.y_end)
+    xr, yr = search_window(problem.scene)
     lat = problem.lattice
     passes = max(2, int(np.floor((z.z_top - z.z_bottom) / (0.8 * problem.scene.block.height))))
     upper, shifted = lat.second_layer(origin)

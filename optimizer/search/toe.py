@@ -38,7 +38,7 @@ import numpy as np
 
 from geometry.coverage import BARE_FRACTION, distance_to_block
 
-from .build import GROUND, Build, Candidate
+from .build import GROUND, Build, Candidate, search_window
 from .drop import Shape
 from .hangings import spread_yaws
 from .problem import Phase, Problem, Stats, Strategy
@@ -143,17 +143,17 @@ class ToeRows(Strategy):
     def _row(self, problem: Problem, build: Build, shapes: ShapeCache, side: float, fam: str,
              yaw: float) -> int:
         """Lay the row from the zone's start to its end; returns how many blocks it placed."""
-        zone = problem.scene.tolerance
+        _, (y, y_end) = search_window(problem.scene)
         h = problem.scene.block.height
         shape = shapes.hung(fam, yaw)
         width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
         step = ROW_STEP * h
-        y, placed = zone.y_start, 0
-        while y <= zone.y_end and len(build) < problem.required and problem.time_left() > 0:
+        placed = 0
+        while y <= y_end and len(build) < problem.required and problem.time_left() > 0:
             # The outermost place on the ground within half a block along the row: the first
             # place beside the block before is often further in, where it clears that block.
             c = None
-            for at in np.arange(y, min(y + 0.5 * width, zone.y_end) + 0.5 * step, step):
+            for at in np.arange(y, min(y + 0.5 * width, y_end) + 0.5 * step, step):
                 if problem.time_left() <= 0:
                     break
                 here = _outermost(problem, build, shape, side, float(at))
@@ -176,9 +176,8 @@ class ToeRows(Strategy):
 def _outermost(problem: Problem, build: Build, shape: Shape, side: float, y: float
                ) -> Candidate | None:
     """The block lowered at ``y`` as far out towards the ``side`` toe as it rests inside the zone."""
-    zone = problem.scene.tolerance
     h = problem.scene.block.height
-    lo, hi = 0.0, float(zone.bottom_half_width)
+    lo, hi = 0.0, search_window(problem.scene)[0][1]
     inner = build.lower(shape, side * lo, y)
     # From the axis outwards, the first place it fits (a mound's core may be taken already).
     step = 0.25 * h
