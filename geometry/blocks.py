@@ -27,6 +27,10 @@ from __future__ import annotations
 
 import hashlib
 import os
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from functools import cache, cached_property, lru_cache
 from pathlib import Path
@@ -482,7 +486,7 @@ def mesh_block(path: str, name: str | None = None) -> Block:
                          f"{MIN_TIP_DEG:g} degree), so a crane cannot set it down in a known pose")
     solid = _manifold(mesh.vertices, mesh.faces, path)
     solid = solid.translate(-centroid)
-    pieces = _facet_pieces(mesh.vertices - centroid, mesh.faces, solid, digest)
+    pieces = _facet_pieces(mesh.vertices - centroid, mesh.faces, solid, digest, path)
     if pieces is None:
         pieces = _coacd_pieces(mesh.vertices - centroid, mesh.faces, digest, path)
     return _block_from_union(name, solid, pieces, file_frame=True)
@@ -535,7 +539,7 @@ _FACET_MAX_TESTS = 1500
 _FACET_VERSION = 1
 
 
-def _facet_pieces(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, digest: str
+def _facet_pieces(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, digest: str, path: str
                   ) -> list[np.ndarray] | None:
     """Convex pieces grown from the mesh's own flat faces, or None where that does not fit.
 
@@ -558,7 +562,7 @@ def _facet_pieces(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, d
     if cached.is_file():
         with np.load(cached) as data:
             return [data[k] for k in sorted(data.files, key=lambda s: int(s[1:]))] or None
-    pieces = _grow_facets(np.asarray(vertices, float), np.asarray(faces, np.int64), solid)
+    pieces = _grow_facets(np.asarray(vertices, float), np.asarray(faces, np.int64), solid, path)
     cached.parent.mkdir(parents=True, exist_ok=True)
     tmp = cached.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(tmp, **{f"p{i}": v for i, v in enumerate(pieces or [])})
@@ -566,15 +570,19 @@ def _facet_pieces(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, d
     return pieces
 
 
-def _grow_facets(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold) -> list[np.ndarray] | None:
-    """The growth of :func:`_facet_pieces`, uncached."""
+def _grow_facets(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, path: str
+                 ) -> list[np.ndarray] | None:
+    """The growth of :func:`_facet_pieces`, uncached; it stops at the deadline :func:`cut_by` set."""
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     limit = _FACET_OUTSIDE * solid.volume()
     tests = 0
+    deadline = _CUT_DEADLINE.get()
 
     def outside(points: np.ndarray) -> float:
         nonlocal tests
         tests += 1
+        if deadline is not None and time.monotonic() > deadline:
+            raise _too_long(path)
         return (m3.Manifold.hull_points(points) - solid).volume()
 
     grouped = np.zeros(len(faces), bool)
@@ -672,18 +680,60 @@ def _decomposition_frame(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.array([x, np.cross(z, x), z])
 
 
+#: When a mesh's first CoACD cut must be done by (``time.monotonic()``), or None: no limit.
+_CUT_DEADLINE: ContextVar[float | None] = ContextVar("cut_deadline", default=None)
+
+
+@contextmanager
+def cut_by(deadline: float | None) -> Iterator[None]:
+    """Within this block, a mesh block's CoACD cut must end by ``deadline`` (``time.monotonic()``).
+
+    A command with a time limit (``shoha optimize --time-limit``) reads its
+    scene in here: the cut, which for a curved mesh can take longer than the
+    whole limit, then runs in a child process that is stopped at the deadline,
+    and the block is refused with :class:`CutTooLong`. A cut that ends is
+    cached as any other, so it is made once.
+    """
+    token = _CUT_DEADLINE.set(deadline)
+    try:
+        yield
+    finally:
+        _CUT_DEADLINE.reset(token)
+
+
+class CutTooLong(InputError):
+    """A mesh's CoACD cut did not end by the deadline :func:`cut_by` set."""
+
+
+def _too_long(path: str) -> CutTooLong:
+    return CutTooLong(f"{path}: cutting the mesh into convex pieces takes longer than the time limit "
+                      f"leaves; cut it once with `shoha block info mesh:{path}` (it is cached), or give "
+                      "a longer --time-limit")
+
+
 def _coacd_pieces(
     vertices: np.ndarray, faces: np.ndarray, digest: str, path: str
 ) -> list[np.ndarray]:
     key = f"{digest}-t{_COACD_THRESHOLD}-h{_COACD_MAX_HULLS}-s{_COACD_SEED}-framed"
     cached = cache_dir() / "coacd" / f"{key}.npz"
-    if cached.is_file():
-        with np.load(cached) as data:
-            return [data[k] for k in sorted(data.files, key=lambda s: int(s[1:]))]
-    try:
-        import coacd
-    except ImportError as exc:  # pragma: no cover - coacd is a dependency
-        raise InputError(f"{path}: mesh blocks need CoACD (pip install coacd)") from exc
+    if not cached.is_file():
+        try:
+            import coacd  # noqa: F401  (the cut, maybe in a child, imports it again)
+        except ImportError as exc:  # pragma: no cover - coacd is a dependency
+            raise InputError(f"{path}: mesh blocks need CoACD (pip install coacd)") from exc
+        deadline = _CUT_DEADLINE.get()
+        if deadline is None:
+            _cut(vertices, faces, cached)
+        else:
+            _cut_within(vertices, faces, cached, deadline, path)
+    with np.load(cached) as data:
+        return [data[k] for k in sorted(data.files, key=lambda s: int(s[1:]))]
+
+
+def _cut(vertices: np.ndarray, faces: np.ndarray, cached: Path) -> None:
+    """Cut the mesh with CoACD, in its decomposition frame, into the cache file ``cached``."""
+    import coacd
+
     coacd.set_log_level("error")
     frame = _decomposition_frame(np.asarray(vertices, float), np.asarray(faces))
     parts = coacd.run_coacd(
@@ -697,7 +747,24 @@ def _coacd_pieces(
     tmp = cached.with_suffix(f".{os.getpid()}.tmp.npz")
     np.savez(tmp, **{f"p{i}": v for i, v in enumerate(pieces)})
     os.replace(tmp, cached)
-    return pieces
+
+
+def _cut_within(vertices: np.ndarray, faces: np.ndarray, cached: Path, deadline: float, path: str) -> None:
+    """:func:`_cut` in a child process, stopped at ``deadline`` (CoACD cannot be interrupted)."""
+    import multiprocessing
+
+    child = multiprocessing.get_context("spawn").Process(
+        target=_cut, args=(np.asarray(vertices, float), np.asarray(faces), cached), daemon=True)
+    child.start()
+    child.join(max(0.0, deadline - time.monotonic()))
+    if child.is_alive():
+        child.terminate()
+        child.join()
+        cached.with_suffix(f".{child.pid}.tmp.npz").unlink(missing_ok=True)
+        raise _too_long(path)
+    if child.exitcode != 0 or not cached.is_file():
+        raise InputError(f"{path}: CoACD could not cut the mesh into convex pieces "
+                         f"(exit status {child.exitcode})")
 
 
 # --- shared construction ---------------------------------------------------------------

@@ -109,10 +109,11 @@ def empty_layout() -> list[tuple[int, Block, Pose]]:
     return []
 
 
-def shoha(*args: str, cwd: Path | None = None, timeout: float = 300) -> subprocess.CompletedProcess:
+def shoha(*args: str, cwd: Path | None = None, timeout: float = 300,
+          env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     """Run the installed ``shoha`` console script, as a user would."""
     exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
-    return subprocess.run([exe, *args], capture_output=True, text=True, cwd=cwd, timeout=timeout)
+    return subprocess.run([exe, *args], capture_output=True, text=True, cwd=cwd, timeout=timeout, env=env)
 
 
 class Served:

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import trimesh
 
 from geometry.blocks import LEG_DIRECTIONS, get_block, mesh_block, tetrapod
 from geometry.errors import InputError
-from tests.conftest import export_turned
+from tests.conftest import export_turned, shoha
 
 
 def test_shake_block_matches_table_i(shake):
@@ -144,6 +146,51 @@ def test_a_curved_mesh_is_cut_by_coacd(tmp_path):
     assert 1 < len(block.pieces) <= 16
     _, left = _union_excess(block)
     assert left < 0.01
+
+
+def test_a_cut_past_its_deadline_is_refused_and_nothing_is_cached(tmp_path, monkeypatch):
+    """Under ``cut_by``, a mesh's first cut stops at the deadline: the facet growth between
+    its hull tests, CoACD in a child process that is stopped. A cut that ends in time is
+    cached and read back as the cut made without a deadline."""
+    import time
+
+    import geometry.blocks as blocks
+
+    monkeypatch.setenv("SHOHA_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "ring.stl"
+    trimesh.creation.torus(1.5, 0.4, major_sections=24, minor_sections=12).export(path)
+    with blocks.cut_by(time.monotonic()):  # the growth's first hull test is past it
+        with pytest.raises(blocks.CutTooLong, match="ring.stl: cutting the mesh .* `shoha block info mesh:"):
+            mesh_block(str(path))
+    assert not list((tmp_path / "cache").rglob("*.npz"))
+    monkeypatch.setattr(blocks, "_FACET_MAX_TESTS", 0)  # straight to CoACD
+    with blocks.cut_by(time.monotonic() + 0.01):  # a child cannot even start in that
+        with pytest.raises(blocks.CutTooLong):
+            mesh_block(str(path))
+    assert not list((tmp_path / "cache" / "coacd").glob("*"))
+    with blocks.cut_by(time.monotonic() + 600):
+        timed = mesh_block(str(path))
+    assert list((tmp_path / "cache" / "coacd").glob("*.npz"))
+    (tmp_path / "cache" / "coacd").rename(tmp_path / "timed")
+    mesh_block.cache_clear()
+    untimed = mesh_block(str(path))
+    for a, b in zip(timed.pieces, untimed.pieces, strict=True):
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
+def test_optimize_refuses_a_mesh_it_cannot_cut_within_its_time_limit(tmp_path):
+    """Exit 2, one line that names the file and says what to do, and no layout written."""
+    trimesh.creation.torus(1.5, 0.4, major_sections=48, minor_sections=24).export(tmp_path / "ring.stl")
+    (tmp_path / "ring.toml").write_text(
+        'name = "ring"\nblock = "mesh:ring.stl"\n[design]\ncrest_width_m = 3.0\nheight_m = 2.0\n'
+        "slope_rise_run = [1.0, 1.5]\nlength_m = 6.0\n")
+    out = tmp_path / "ring.json"
+    done = shoha("optimize", str(tmp_path / "ring.toml"), "--out", str(out), "--time-limit", "0.5",
+                 env={**os.environ, "SHOHA_CACHE": str(tmp_path / "cache")})
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "ring.stl: cutting the mesh into convex pieces" in lines[0]
+    assert not out.exists()
 
 
 def test_mesh_decomposition_is_cached_by_hash(tmp_path, monkeypatch):

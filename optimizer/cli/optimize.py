@@ -15,6 +15,10 @@ from geometry.errors import InputError
 
 from .common import check_out, emit, json_option, parse_origin, save_options
 
+#: The share of the time limit (or of the least default limit) that a mesh block's first cut
+#: into convex pieces may take; the rest is left to place blocks with it.
+CUT_SHARE = 0.75
+
 
 def _strategies(names: str) -> list:
     from optimizer.search.anneal import Annealing
@@ -69,16 +73,19 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     how to read it.
     """
     started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
+    from geometry.blocks import cut_by
     from geometry.layout import write_layout
     from geometry.scene import load_scene
-    from optimizer.api import optimize
+    from optimizer.api import MIN_DEFAULT_LIMIT, optimize
     from optimizer.batch import load_save
     from optimizer.score import check_same_scene
 
     if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
         raise InputError(f"--time-limit {time_limit}: must be a positive number of seconds")
     path = check_out(out)
-    scene = load_scene(scene_name)
+    # A mesh block's first cut into convex pieces may take at most this share of the limit.
+    with cut_by(started + CUT_SHARE * (time_limit or MIN_DEFAULT_LIMIT)):
+        scene = load_scene(scene_name)
     keep = []
     if keep_path is not None:
         if path.resolve() == Path(keep_path).resolve():

@@ -220,6 +220,8 @@ class Annealing(Strategy):
         # Calibrate T0: the mean uphill change of a sample of moves is accepted half the time.
         uphill = []
         for _ in range(40):
+            if problem.time_left() <= 0:  # a drop of a many-faced block can take 0.1 s
+                break
             kind, key, c = self._propose(problem, build, shapes, rng)
             if c is not None:
                 d, _ = self._delta(problem, build, energy, key, c, weak)
