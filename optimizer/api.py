@@ -456,10 +456,13 @@ def optimize(
 def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_limit: float,
               kept: bool) -> str | None:
     """Why an attempt's search stopped short of the count, from its last pocket fill (its
-    ``ended``): no room found, or no time left; None if it reached the count or no fill ran."""
-    ended = [p for p in phases if "ended" in p]
-    if blocks >= required or not ended:
+    ``ended``): no room found, or no time left. Where no fill ran (``--strategy`` without it),
+    what the strategies that ran can place. None if it reached the count."""
+    if blocks >= required:
         return None
+    ended = [p for p in phases if "ended" in p]
+    if not ended:
+        return _without_fill(phases)
     last = ended[-1]
     if last["ended"] == "room":
         return (f"no room was found for more{' around the kept blocks' if kept else ''}: the last "
@@ -470,6 +473,22 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
     if last["ended"] == "time":
         return f"the time ran out (limit {time_limit:.0f} s): a longer --time-limit may place more"
     return None
+
+
+def _without_fill(phases: list[dict[str, Any]]) -> str | None:
+    """The shortfall where no pocket fill ran: CP-SAT's ground layer, or the strategies' names."""
+    names = list(dict.fromkeys(p["strategy"] for p in phases if p["strategy"] != "attempts"))
+    if not names:
+        return None
+    solved = [p for p in phases if p["strategy"] == "cpsat" and not p.get("skipped")]
+    if names == ["cpsat"] and solved:
+        last = solved[-1]
+        return (f"CP-SAT lays the ground layer only: the best choice among its {last['candidates']} "
+                f"candidate poses on the foundation holds {last['placed']} blocks"
+                f"{' (proved optimal among them)' if last.get('optimal') else ''}; with beam and fill "
+                "in --strategy, blocks are laid on top as well")
+    return (f"the strategies run ({', '.join(names)}) placed no more; the pocket fill "
+            "(fill in --strategy, as by default) adds blocks where they settle, and says why it stops")
 
 
 #: Searches a run may make: when one ends short of the required count (or with a layout that

@@ -697,7 +697,14 @@ def test_a_shortfall_in_words():
     assert shortfall([room, time_out], 75, 57, 120.0, kept=False) == (
         "the time ran out (limit 120 s): a longer --time-limit may place more")
     assert shortfall([room], 75, 75, 120.0, kept=False) is None
-    assert shortfall([{"strategy": "beam"}], 75, 57, 120.0, kept=False) is None
+    # Without a fill: the strategies that ran, or CP-SAT's ground layer.
+    assert shortfall([{"strategy": "beam"}], 75, 57, 120.0, kept=False).startswith(
+        "the strategies run (beam) placed no more")
+    solved = {"strategy": "cpsat", "candidates": 160, "placed": 52, "optimal": True, "skipped": False}
+    assert shortfall([solved], 75, 52, 5.0, kept=False).startswith(
+        "CP-SAT lays the ground layer only: the best choice among its 160 candidate poses on the "
+        "foundation holds 52 blocks (proved optimal among them)")
+    assert shortfall([solved], 75, 75, 5.0, kept=False) is None
 
 
 def test_a_mound_shorter_than_a_block_gets_no_block_and_no_error(tmp_path):
