@@ -349,6 +349,9 @@ class SettleResult:
     peak_speed: float
     backend: str
     thresholds: Thresholds = field(default_factory=Thresholds)
+    #: The engine diverged (:class:`Diverged`): the run gave no answer, so no free block is
+    #: known to stand; each is reported where it started, not stable.
+    diverged: bool = False
 
     @property
     def poses(self) -> dict[int, Pose]:
@@ -376,11 +379,13 @@ class SettleResult:
             "at_rest": self.at_rest,
             "peak_speed_m_s": self.peak_speed,
             "backend": self.backend,
+            "diverged": self.diverged,
         }
 
     def summary(self) -> str:
         """One line for people."""
-        verdict = "stable" if self.stable else f"UNSTABLE ({len(self.unstable_ids)} blocks moved)"
+        verdict = ("stable" if self.stable else "NOT CONFIRMED (the physics engine diverged)" if self.diverged
+                   else f"UNSTABLE ({len(self.unstable_ids)} blocks moved)")
         return (f"{verdict}: {len(self.blocks)} blocks, max displacement {self.max_displacement_m:.4f} m, "
                 f"max rotation {self.max_rotation_deg:.2f} deg ({self.backend}, "
                 f"{self.simulated_seconds:.2f} s simulated in {self.seconds:.2f} s)")

@@ -25,6 +25,7 @@ from .base import (
     KICK_SPEED,
     MAX_SECONDS,
     BlockSettle,
+    Diverged,
     Progress,
     Run,
     SettleBackend,
@@ -80,6 +81,8 @@ def settle(
     Returns
     -------
     SettleResult
+        Where the engine diverged (:class:`Diverged`), one with ``diverged``
+        set: not stable, each free block where it started and not stable.
 
     Raises
     ------
@@ -114,10 +117,13 @@ def settle(
         bodies.append(SettleBody(int(key), block, pose, key in free, v, w))
     backend.check(scene, bodies)
 
-    if any(b.movable for b in bodies):
-        run = backend.simulate(scene, bodies, float(seconds), early_stop, progress)
-    else:
-        run = Run({}, 0.0, 0, True)
+    diverged = False
+    try:
+        run = (backend.simulate(scene, bodies, float(seconds), early_stop, progress)
+               if any(b.movable for b in bodies) else Run({}, 0.0, 0, True))
+    except Diverged:
+        # A wedge the engine's contacts could not resolve: no answer, so nothing is known to stand.
+        run, diverged = Run({}, 0.0, 0, False), True
 
     records = []
     for body in bodies:
@@ -125,7 +131,7 @@ def settle(
         displacement = float(np.linalg.norm(final.position - body.pose.position))
         rotation = float(np.degrees(rotation_between(body.pose.quaternion, final.quaternion)))
         ok = (displacement <= thresholds.displacement_limit(body.block)
-              and rotation <= thresholds.rotation_deg)
+              and rotation <= thresholds.rotation_deg and not (diverged and body.movable))
         records.append(BlockSettle(body.id, final, displacement, rotation, bool(ok), body.movable))
     return SettleResult(
         stable=all(r.stable for r in records),
@@ -139,6 +145,7 @@ def settle(
         peak_speed=run.peak_speed,
         backend=backend.name,
         thresholds=thresholds,
+        diverged=diverged,
     )
 
 

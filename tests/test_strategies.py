@@ -29,6 +29,7 @@ from optimizer.search.patterns import lattice_for
 from optimizer.search.physics import raised_check
 from optimizer.search.problem import Phase, Problem
 from optimizer.search.toe import ToeRows
+from settle.mujoco_backend import MujocoBackend
 from tests.clock import WorkClock
 from tests.conftest import ROOT
 
@@ -324,11 +325,34 @@ def test_a_candidate_whose_settle_diverges_is_refused(monkeypatch):
     def diverge(*args, **kwargs):
         raise Diverged("MuJoCo diverged at step 80 (non-finite accelerations)")
 
-    monkeypatch.setattr(physics, "settle", diverge)
+    monkeypatch.setattr(MujocoBackend, "simulate", diverge)
     assert physics.settle_in(problem(scene), build, c) is None
     rough = load_scene(ROOT / "benchmarks" / "scenes" / "mini-rough.toml")  # seated first, then let go
     on_rubble = Build(rough).lower(shape, 0.0, rough.length / 2)
     assert on_rubble is not None and physics.raised_check(problem(rough), Build(rough), on_rubble) is None
+
+
+def test_a_layout_whose_settle_diverges_is_kept_whole_and_not_confirmed(monkeypatch):
+    """A whole-layout settle that diverges names no block that fails: the confirmation keeps
+    every block (it took none out) and says the layout is not stable; ``settle`` itself says
+    it diverged rather than raising, and counts no free block as standing."""
+    from optimizer.search import physics
+    from settle import Diverged, settle
+
+    scene = load_scene("mini")
+    free = BeamSearch(restarts=1, origins=1).run(problem(scene, 20.0), None, np.random.default_rng(1)).build
+    assert len(free) > 5
+
+    def diverge(*args, **kwargs):
+        raise Diverged("MuJoCo diverged at step 80 (non-finite accelerations)")
+
+    monkeypatch.setattr(MujocoBackend, "simulate", diverge)
+    result = settle(scene, free.placed(), movable=free.order[:5])
+    assert result.diverged and not result.stable
+    assert [b.stable for b in result.blocks] == [False] * 5 + [True] * (len(free) - 5)
+    assert result.to_dict()["diverged"] is True and "diverged" in result.summary()
+    kept, confirmation = physics.confirm(problem(scene), free, np.random.default_rng(0))
+    assert len(kept) == len(free) and not confirmation.stable and confirmation.repaired == 0
 
 
 def scene_families(scene):

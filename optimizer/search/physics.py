@@ -28,7 +28,7 @@ import numpy as np
 from geometry.clip import volume_inside
 from geometry.collision import collisions
 from geometry.constants import tol
-from settle import Diverged, SettleResult, Thresholds, settle
+from settle import SettleResult, Thresholds, settle
 
 from .beam import BeamSearch
 from .build import GROUND, Build, Candidate
@@ -116,11 +116,9 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
 def _let_go(problem: Problem, placed: list, key: int) -> SettleResult | None:
     """The short settle of block ``key`` let go among fixed ``placed``; None where the engine
     diverged (the candidate is refused, as one that does not come to rest is)."""
-    try:
-        return settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
-                      thresholds=LOCAL_THRESHOLDS)
-    except Diverged:
-        return None
+    result = settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
+                    thresholds=LOCAL_THRESHOLDS)
+    return None if result.diverged else result
 
 
 def local_check(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
@@ -194,9 +192,10 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
     stable.
     """
     result = settle(problem.scene, placed, seed=int(rng.integers(2**31)), movable=movable)
-    if result.stable:
+    if result.stable or result.diverged:
+        # Where the engine diverged, another kick may let it answer.
         again = settle(problem.scene, placed, seed=VERDICT_SEED, movable=movable)
-        if not again.stable:
+        if not again.stable or result.diverged:
             return again
     return result
 
@@ -272,9 +271,10 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
                     adopted += 1
             break
         # Kept blocks (a partial layout's) are never taken out: if only they fail, the
-        # verdict stands as it is and the caller reports them.
+        # verdict stands as it is and the caller reports them. Where the engine diverged it
+        # named no block: the layout stays whole, and is not confirmed.
         failed = carried_closure(build, set(result.unstable_ids)) - set(build.kept)
-        if not failed:
+        if not failed or result.diverged:
             break
         left = limit - problem.now() - cost
         if adopted < ROUNDS and left > 3 * cost:

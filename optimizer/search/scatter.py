@@ -41,7 +41,7 @@ def scatter(scene: Scene, n: int, seed: int = 0, tries: int = 5000) -> Build:
     for _ in range(ROUNDS):
         left = _drop(problem, build, rng, n, left)
         result = settle(scene, build.placed(), seed=0)
-        if result.stable:
+        if result.stable or result.diverged:
             break
         for k in sorted(carried_closure(build, set(result.unstable_ids)), key=build.order.index,
                         reverse=True):
