@@ -313,7 +313,10 @@ class MujocoBackend(SettleBackend):
         done = [0]
 
         def advance(n: int) -> None:
-            mujoco.mj_step(model, data, nstep=n)
+            try:
+                mujoco.mj_step(model, data, nstep=n)
+            except mujoco.FatalError as exc:  # its stack overflowed: blocks one inside another
+                raise Diverged(f"MuJoCo stopped at step {done[0]}: {exc}") from exc
             done[0] += n
             self._check_health(data, done[0])
 
@@ -328,7 +331,9 @@ class MujocoBackend(SettleBackend):
         w = mujoco.mjtWarning
         full = data.warning[w.mjWARN_CONTACTFULL].number + data.warning[w.mjWARN_CNSTRFULL].number
         if full:
-            raise RuntimeError(f"MuJoCo ran out of contact memory at step {steps}; raise ARENA_PER_BLOCK")
+            # Contacts beyond the arena sized for blocks that touch (ARENA_PER_BLOCK): blocks lie
+            # one inside another, as no layout that passes the checks does. No answer.
+            raise Diverged(f"MuJoCo ran out of contact memory at step {steps} (blocks inside one another)")
         if data.warning[w.mjWARN_BADQACC].number or not np.isfinite(data.qpos).all():
             raise Diverged(f"MuJoCo diverged at step {steps} (non-finite accelerations)")
 

@@ -152,6 +152,16 @@ def test_floating_shake_pile_is_unstable(mini, shake):
     np.testing.assert_allclose([b.displacement_m for b in r.blocks], 1.5, atol=0.01)
 
 
+@pytest.mark.parametrize("copies", [20, 60])
+def test_blocks_one_inside_another_get_no_answer_not_a_crash(mini, shake, copies):
+    """A hostile save of one pose many times over: MuJoCo's stack overflowed (20 copies) or its
+    contacts filled the arena (50), and settle, score and optimize --keep ended with exit 1.
+    The settle now says it has no answer: diverged, nothing stable."""
+    pose = standing(shake, 0.0, 6.0, 0.0)
+    r = settle(mini, [(i, shake, pose) for i in range(copies)])
+    assert r.diverged and not r.stable and not any(b.stable for b in r.blocks)
+
+
 # --- the model --------------------------------------------------------------------------------
 
 
