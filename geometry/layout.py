@@ -39,6 +39,8 @@ from .scene import Scene, load_scene
 
 FORMAT = "shoha-layout/1"
 
+#: The largest block id: JSON readers hold integers exactly up to 2**53.
+MAX_ID = 2**53
 #: Coordinates beyond this many metres from the origin are not a breakwater.
 MAX_COORDINATE = 1e6
 
@@ -214,8 +216,9 @@ def _placement(raw: Any, index: int, source: str, base_dir: str | None) -> Place
     if missing:
         raise InputError(f"{where}: missing {missing[0]!r}")
     key = raw["id"]
-    if not isinstance(key, int) or isinstance(key, bool) or key < 0 or key > 2**53:
-        raise InputError(f"{where}: id must be a non-negative integer, not {key!r}")
+    if not isinstance(key, int) or isinstance(key, bool) or key < 0 or key > MAX_ID:
+        raise InputError(f"{where}: id must be an integer from 0 to 2**53 (JSON's exact integers), "
+                         f"not {key!r}")
     where = f"{source}: block {key}"
     kind = raw["type"]
     if not isinstance(kind, str):
@@ -234,7 +237,8 @@ def _placement(raw: Any, index: int, source: str, base_dir: str | None) -> Place
 
 def normalised_quaternion(q: np.ndarray, where: str) -> np.ndarray:
     """``q`` normalised if its norm is within ``tol.quaternion_norm`` of 1, else an error."""
-    norm = float(np.linalg.norm(q))
+    with np.errstate(over="ignore"):  # a norm of 1e200s is inf, and refused below
+        norm = float(np.linalg.norm(q))
     if abs(norm - 1.0) > tol.quaternion_norm:
         raise InputError(f"{where}: quaternion norm {norm:.6g} is not 1")
     return q

@@ -99,7 +99,11 @@ def test_keep_input_errors(tmp_path, partial):
     nan.write_text(partial.read_text().replace(str(d["blocks"][2]["position"][0]), "NaN", 1))
     broken = tmp_path / "broken.json"
     broken.write_text(partial.read_text()[:-20])
+    near_last_id = tmp_path / "near-last-id.json"  # new ids would pass 2**53, which no reader takes
+    write_layout(Layout("mini", [Placement(2**53 - 10 + i, p.type, p.pose)
+                                 for i, p in enumerate(layout.blocks[:10])]), near_last_id)
     cases = {
+        "ids near 2**53": (near_last_id, out),
         "another scene": (tetrapod, out),
         "another block type": (wrong_type, out),
         "repeated ids": (repeated, out),

@@ -42,6 +42,10 @@ def parse_origin(text: str) -> tuple[float, float, float]:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
         raise InputError(f"--origin {text!r}: expected three numbers X,Y,Z in metres")
+    from geometry.layout import MAX_COORDINATE
+
+    if max(abs(v) for v in values) > MAX_COORDINATE:
+        raise InputError(f"--origin {text!r}: more than {MAX_COORDINATE:g} m from the world origin")
     return values  # type: ignore[return-value]
 
 

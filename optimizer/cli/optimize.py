@@ -74,7 +74,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     """
     started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
     from geometry.blocks import cut_by
-    from geometry.layout import write_layout
+    from geometry.layout import MAX_ID, write_layout
     from geometry.scene import load_scene
     from optimizer.api import MIN_DEFAULT_LIMIT, optimize
     from optimizer.batch import load_save
@@ -94,6 +94,10 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
                                            parse_origin(origin))
         check_same_scene(partial_scene, scene, keep_path)
         keep = partial.blocks
+        if keep and max(p.id for p in keep) + scene.required_blocks > MAX_ID:
+            # New blocks are numbered on from the largest kept id, and must read back too.
+            raise InputError(f"{keep_path}: kept ids up to {max(p.id for p in keep)} leave no room to "
+                             f"number {scene.required_blocks} more blocks within 2**53")
         other = next((p for p in keep if p.type != scene.block_type), None)
         if other is not None:  # the file is named here, where it is known
             raise InputError(f"{keep_path}: kept block {other.id} is a {other.type!r}; the scene places "
