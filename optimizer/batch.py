@@ -315,8 +315,13 @@ def expand_saves(patterns: Sequence[str], exclude: Iterable[str | os.PathLike] =
     return out
 
 
+#: Seeds one batch may name at most.
+MAX_SEEDS = 100_000
+
+
 def parse_seeds(text: str) -> list[int]:
     """Seeds from ``"0-9"``, ``"1,4,7"`` or ``"0-3,10"``."""
+    too_many = InputError(f"--seeds {text!r}: seeds are non-negative, at most {MAX_SEEDS} of them")
     seeds: list[int] = []
     for part in text.split(","):
         part = part.strip()
@@ -326,13 +331,13 @@ def parse_seeds(text: str) -> list[int]:
                 a, b = int(lo), int(hi)
                 if b < a:
                     raise ValueError
-                seeds.extend(range(a, b + 1))
             else:
-                seeds.append(int(part))
+                a = b = int(part)
         except ValueError:
             raise InputError(f"--seeds {text!r}: expected seeds like 0-9 or 1,4,7") from None
-    if any(s < 0 for s in seeds) or len(seeds) > 100_000:
-        raise InputError(f"--seeds {text!r}: seeds are non-negative, at most 100000 of them")
+        if a < 0 or len(seeds) + b - a + 1 > MAX_SEEDS:  # counted before a range is made
+            raise too_many
+        seeds.extend(range(a, b + 1))
     return list(dict.fromkeys(seeds))
 
 
