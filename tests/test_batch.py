@@ -259,7 +259,8 @@ def test_parse_seeds(text, seeds):
 
 
 # 0-99999999999 made its whole list first: a MemoryError, exit 1.
-@pytest.mark.parametrize("text", ["", "a", "3-1", "-1", "1-2-3", "0-100000", "0-99999999999", "0-99999,100001"])
+@pytest.mark.parametrize("text", ["", "a", "3-1", "-1", "1-2-3", "0-100000", "0-99999999999",
+                                  "0-99999,100001"])
 def test_parse_seeds_rejects(text):
     with pytest.raises(InputError):
         parse_seeds(text)

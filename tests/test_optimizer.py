@@ -594,6 +594,33 @@ def test_time_spent_before_the_run_counts_against_its_limit(tiny, monkeypatch):
     assert r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
 
 
+def test_a_coverage_that_would_overrun_the_limit_is_left_out(tiny, monkeypatch):
+    """Slender blocks made the final coverage take 137 s after a 10 s limit. Here each block's
+    surface samples cost a fake second: the measure stops at the limit (+1 s), the result
+    has no coverage and says so, and the run keeps its limit."""
+    import geometry.coverage as cov
+
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    samples = cov.block_samples
+
+    calls = []
+
+    def slow(block, spacing):
+        clock.t += 1.0
+        calls.append(1)
+        return samples(block, spacing)
+
+    monkeypatch.setattr(cov, "block_samples", slow)
+    r = optimize(tiny, seed=3, time_limit=4.0, clock=clock, cover=False)
+    assert r.blocks > 3 and r.coverage is None and r.seconds <= 4.0 + 2.0
+    assert 0 < len(calls) < r.blocks, "the measure began, and stopped before its last block"
+    assert "the coverage was not measured" in r.summary()
+    with pytest.raises(cov.TimeUp):
+        cov.coverage(tiny, r.layout.placed(), deadline=clock() + 2.5, clock=clock)
+    monkeypatch.setattr(cov, "block_samples", samples)
+    assert cov.coverage(tiny, r.layout.placed(), deadline=clock() + 0.5, clock=clock) is not None
+
+
 def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path, monkeypatch):
     """A 2 km breakwater (about 12 000 blocks) in 4 s of a clock that advances with the work:
     one quick pass of the pattern over it would take 120 of them, so the origin ranking must

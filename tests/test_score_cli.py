@@ -112,7 +112,8 @@ def test_an_origin_beyond_any_breakwater_is_bad_usage(tmp_path):
     """``--origin 1e300,0,0`` put every block at 1e300 m and scored with exit 1."""
     save = tmp_path / "trainee.json"
     save.write_text(json.dumps(to_unity_save(read_layout(REFERENCE), (0.0, 0.0, 0.0))))
-    done = shoha("score", str(save), "--reference", str(REFERENCE), "--from", "unity", "--origin", "1e300,0,0")
+    done = shoha("score", str(save), "--reference", str(REFERENCE), "--from", "unity",
+                 "--origin", "1e300,0,0")
     assert done.returncode == 2 and done.stderr.strip().splitlines() == [
         "shoha: --origin '1e300,0,0': more than 1e+06 m from the world origin"]
 

@@ -90,9 +90,11 @@ def test_times_are_kept(tmp_path):
                                   "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}, "time_s": 7}]},
      "earlier than block 0's time_s 7"),
     # As a layout's: a save at 1e308 m scored with exit 1 (overflow in the coverage's tree).
-    ({"blocks": [{"position": {"x": 1e308, "y": 1e308, "z": 2}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]},
+    ({"blocks": [{"position": {"x": 1e308, "y": 1e308, "z": 2},
+                  "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]},
      "position is more than 1e\\+06 m from the origin"),
-    ({"blocks": [{"position": {"x": 0, "y": 0, "z": 0}, "rotation": {"x": 1e200, "y": 1e200, "z": 0, "w": 0}}]},
+    ({"blocks": [{"position": {"x": 0, "y": 0, "z": 0},
+                  "rotation": {"x": 1e200, "y": 1e200, "z": 0, "w": 0}}]},
      "norm inf is not 1"),
 ])
 def test_bad_saves(tmp_path, save, message):
