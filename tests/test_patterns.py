@@ -133,6 +133,25 @@ def test_lattice_sites_are_every_lattice_point_in_the_window_and_no_other(name):
             assert sorted(skewed.sites(xr, yr, origin)) == sorted(every)
 
 
+def test_a_lattice_laid_past_the_tuners_end_is_given_up_before_its_drops(cube, monkeypatch):
+    """A curved mesh's drops took seconds each, and the tuner laid whole lattices past its
+    budget (20 s for --time-limit 6): once ``late``, a lattice is scored as unlaid without a
+    drop, and the spread of the winner is skipped."""
+    from optimizer.search.drop import DropWorld
+
+    drops = []
+    drop = DropWorld.drop
+    monkeypatch.setattr(DropWorld, "drop", lambda self, *a, **k: drops.append(1) or drop(self, *a, **k))
+    lat = staggered(cube)
+    fams = (lat.family_a, lat.family_b)
+    assert _lattice_penalty(_params(lat), cube, fams, late=lambda: True) == patterns.PAST_END and not drops
+    assert _lattice_penalty(_params(lat), cube, fams) == pytest.approx(lat.area_per_block) and len(drops) == 2
+    tight = lat.scaled(0.995)  # feasible, and so is its spread (the bond leaves a 1 % gap)
+    assert patterns.with_clearance(tight, cube) != tight
+    assert patterns.with_clearance(tight, cube, late=lambda: True) == tight
+    assert not patterns.late(None)() and not patterns.late(60.0)() and patterns.late(-patterns.LATE_S - 1)()
+
+
 def test_a_tuned_lattice_is_cached_and_reused(tmp_path, monkeypatch):
     monkeypatch.setenv("SHOHA_CACHE", str(tmp_path))
     block = get_block("box:1.3x1.1x0.9")

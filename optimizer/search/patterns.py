@@ -163,12 +163,16 @@ def _steps(window: tuple[float, float], start: float, step: float) -> range:
     return range(int(np.floor((window[0] - start) / step)) - 1, int(np.ceil((window[1] - start) / step)) + 2)
 
 
-def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str]) -> float:
+def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str],
+                     late: Callable[[], bool] = lambda: False) -> float:
     """Area per block plus a penalty for each metre a block stops short of the ground.
 
     By the lattice's translation symmetry, two drops decide feasibility: the
     centre crown lowered among the crowns placed before it, and the centre
     level block lowered among all crowns and the level blocks before it.
+    ``late`` is asked before each: if it says so, the lattice is given up as
+    unlaid (:data:`PAST_END`; a drop of a block of many-vertexed pieces took
+    seconds).
     """
     p, w, q, u, v, ya, yb = params
     sa = Shape.of(block, hanging_of(block, families[0], ya))
@@ -182,6 +186,8 @@ def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str]
         # Crowns go in sweep order (row j, then i): the centre's predecessors are those before it.
         if (j, i) < (0, 0):
             world.add(key, sa, [j * w, i * p + j * q, -sa.lows.min()])
+    if late():
+        return PAST_END
     za, _, _ = world.drop(sa, 0.0, 0.0)
     for key, (j, i) in enumerate(near):
         if (j, i) >= (0, 0):
@@ -189,6 +195,8 @@ def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str]
     for key, (j, i) in enumerate(near, start=len(near)):
         if (j, i) < (0, 0):
             world.add(key, sb, [u + j * w, v + i * p + j * q, -sb.lows.min()])
+    if late():
+        return PAST_END
     zb, _, _ = world.drop(sb, u, v)
     short = (za + sa.lows.min()) + (zb + sb.lows.min()) - 2 * tol.drop_resolution
     return p * w / 2.0 + 20.0 * max(0.0, short)
@@ -196,6 +204,19 @@ def _lattice_penalty(params: np.ndarray, block: Block, families: tuple[str, str]
 
 #: The penalty of a lattice the tuner had no time left to lay: worse than any laid one.
 PAST_END = 1e12
+#: Seconds past its end that a lattice may still be laid before the tuner gives it up.
+LATE_S = 1.0
+
+
+def late(seconds: float | None) -> Callable[[], bool]:
+    """A ``late`` for :func:`_lattice_penalty`: ``LATE_S`` past ``seconds`` from now (never without).
+
+    On the wall clock, not the tuner's own (which tests drive by its reads): it is the
+    safety net for a lattice whose laying outlasts the budget, not part of the budget."""
+    if seconds is None:
+        return lambda: False
+    end = time.monotonic() + seconds + LATE_S
+    return lambda: time.monotonic() > end
 #: Independent runs of the lattice tuner, each from its own seed, per pair of hangings.
 TUNE_RESTARTS = 1
 #: Under a time budget the runs are raced (successive halving): each round has an equal share
@@ -255,6 +276,7 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
         [("crown", "level")] if hangings.named(block) else
         [(names[0], names[0])] + ([(names[0], names[1])] if len(names) > 1 else []))
     runs = [_Run(block, pair, seed + r) for r in range(TUNE_RESTARTS) for pair in pairs]
+    overdue = late(seconds)
     if seconds is None:
         for run in runs:
             run.go(maxiter, None, clock)
@@ -263,7 +285,7 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     best = min(runs, key=lambda r: r.volume)
     if best.lattice is None:
         raise RuntimeError(f"{block.name}: no crane-feasible lattice found")
-    return with_clearance(best.lattice, block)
+    return with_clearance(best.lattice, block, overdue)
 
 
 #: Share by which a tuned lattice is spread before it is used. The tuner drives a lattice to the
@@ -274,18 +296,20 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
 CLEARANCE = 0.003
 
 
-def with_clearance(lattice: InterlockLattice, block: Block) -> InterlockLattice:
+def with_clearance(lattice: InterlockLattice, block: Block,
+                   late: Callable[[], bool] = lambda: False) -> InterlockLattice:
     """``lattice`` spread by :data:`CLEARANCE`, if it stays crane-feasible and no looser than the
-    staggered bond the tuner starts from (which leaves gaps of its own); else as it is."""
+    staggered bond the tuner starts from (which leaves gaps of its own); else as it is (also
+    where ``late`` gives the check up)."""
     spread = lattice.scaled(1.0 + CLEARANCE)
     if spread.area_per_block > staggered(block, lattice.family_a).area_per_block:
         return lattice
-    return spread if feasible(spread, block) else lattice
+    return spread if feasible(spread, block, late) else lattice
 
 
-def feasible(lattice: InterlockLattice, block: Block) -> bool:
+def feasible(lattice: InterlockLattice, block: Block, late: Callable[[], bool] = lambda: False) -> bool:
     """Whether a crane lays ``lattice`` with every block reaching the ground (its penalty is its area)."""
-    return _lattice_penalty(lattice_params(lattice), block, (lattice.family_a, lattice.family_b)) <= (
+    return _lattice_penalty(lattice_params(lattice), block, (lattice.family_a, lattice.family_b), late) <= (
         lattice.area_per_block * (1 + tol.relative))
 
 
@@ -310,6 +334,8 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
     for k in range(rounds):
         share = (start + seconds - clock()) / (rounds - k)
         for run in alive:
+            if clock() >= start + seconds and run.lattice is not None:
+                break  # each start scores at least one lattice, which may take seconds: no more
             run.go(maxiter, share / len(alive), clock)
         alive = sorted(alive, key=lambda r: r.volume)[: max(1, math.ceil(len(alive) / HALVING))]
 
@@ -363,14 +389,16 @@ class _Run:
         if left <= 0:
             return
         end = None if seconds is None else clock() + max(0.0, seconds)
+        overdue = late(None if seconds is None else max(0.0, seconds))
 
         def penalty(params: np.ndarray) -> float:
             # The generation's callback ends a run, but a population (21 lattices, each a score
             # of drops, 0.25 s apiece on a 12-piece torus) is scored first: past the end, the
-            # rest of it are scored as infeasible without being laid.
+            # rest of it are scored as infeasible without being laid, and one still being laid
+            # LATE_S past it is given up as infeasible too.
             if end is not None and clock() > end:
                 return PAST_END
-            return _lattice_penalty(params, self.block, self.families)
+            return _lattice_penalty(params, self.block, self.families, overdue)
 
         result = differential_evolution(
             penalty, self.bounds,
