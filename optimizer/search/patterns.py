@@ -217,6 +217,8 @@ def late(seconds: float | None) -> Callable[[], bool]:
         return lambda: False
     end = time.monotonic() + seconds + LATE_S
     return lambda: time.monotonic() > end
+
+
 #: Independent runs of the lattice tuner, each from its own seed, per pair of hangings.
 TUNE_RESTARTS = 1
 #: Under a time budget the runs are raced (successive halving): each round has an equal share
