@@ -228,11 +228,16 @@ def _placement(raw: Any, index: int, source: str, base_dir: str | None) -> Place
     except InputError as exc:
         raise InputError(f"{where}: {exc}") from None
     position = _vector(raw["position"], 3, "position", where)
-    if np.abs(position).max() > MAX_COORDINATE:
-        raise InputError(f"{where}: position is more than {MAX_COORDINATE:g} m from the origin")
+    check_position(position, where)
     q = _vector(raw["quaternion"], 4, "quaternion", where)
     time_s = check_seconds(raw["time_s"], "time_s", where) if "time_s" in raw else None
     return Placement(key, kind, Pose(position, normalised_quaternion(q, where)), time_s)
+
+
+def check_position(position: np.ndarray, where: str, frame: str = "") -> None:
+    """Refuse a position more than :data:`MAX_COORDINATE` from the origin: not a breakwater's."""
+    if np.abs(position).max() > MAX_COORDINATE:
+        raise InputError(f"{where}: position is more than {MAX_COORDINATE:g} m from the origin{frame}")
 
 
 def normalised_quaternion(q: np.ndarray, where: str) -> np.ndarray:

@@ -24,7 +24,7 @@ from .blocks import get_block
 from .constants import MAX_BLOCKS
 from .errors import InputError
 from .fileio import read_json
-from .layout import MAX_COORDINATE, Layout, Placement, check_elapsed, check_seconds, normalised_quaternion
+from .layout import Layout, Placement, check_elapsed, check_position, check_seconds, normalised_quaternion
 from .pose import Pose
 
 #: The permutation matrix that swaps y and z.
@@ -85,16 +85,13 @@ def read_unity_save(
         except InputError as exc:
             raise InputError(f"{where}: {exc}") from None
         position = _fields(raw.get("position"), "xyz", "position", where)
-        if max(abs(v) for v in position.values()) > MAX_COORDINATE:
-            raise InputError(f"{where}: position is more than {MAX_COORDINATE:g} m from the origin")
+        check_position(np.array(list(position.values())), where)  # before --origin is added to it
         rotation = _fields(raw.get("rotation"), "xyzw", "rotation", where)
         q = np.array([rotation[c] for c in "xyzw"])
         normalised_quaternion(q, where)
         time_s = check_seconds(raw["time_s"], "time_s", where) if "time_s" in raw else None
         placement = Placement(index, kind, unity_to_world(position, rotation, origin_arr), time_s)
-        if np.abs(placement.pose.position).max() > MAX_COORDINATE:  # as a layout's are
-            raise InputError(f"{where}: position is more than {MAX_COORDINATE:g} m from the origin "
-                             "in the world frame (after --origin)")
+        check_position(placement.pose.position, where, " in the world frame (after --origin)")
         placements.append(placement)
     extra = {}
     if "elapsed_s" in data:

@@ -94,9 +94,10 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
                                            parse_origin(origin))
         check_same_scene(partial_scene, scene, keep_path)
         keep = partial.blocks
-        if keep and max(p.id for p in keep) + scene.required_blocks > MAX_ID:
+        last = max((p.id for p in keep), default=-1)
+        if last + scene.required_blocks > MAX_ID:
             # New blocks are numbered on from the largest kept id, and must read back too.
-            raise InputError(f"{keep_path}: kept ids up to {max(p.id for p in keep)} leave no room to "
+            raise InputError(f"{keep_path}: kept ids up to {last} leave no room to "
                              f"number {scene.required_blocks} more blocks within 2**53")
         other = next((p for p in keep if p.type != scene.block_type), None)
         if other is not None:  # the file is named here, where it is known
