@@ -51,6 +51,10 @@ CELLS_PER_H = 16
 #: The most surface samples the default spacing gives: ``full`` (2310 m^2 at H / 16) has 214 000.
 MAX_SAMPLES = 500_000
 
+#: Surface points per nearest-sample query, the deadline read between them: 0.015 s on the
+#: ``mini`` reference (16 874 points, 0.06 s in all), 0.55 s among 27 slender beams.
+QUERY_CHUNK = 4096
+
 #: Bare means further than this fraction of the block height H from every block.
 BARE_FRACTION = 0.5
 
@@ -376,7 +380,13 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
             check()
             clouds.append(pose.apply(block_samples(block, step)))
         owner = np.repeat(np.arange(len(placed)), [len(c) for c in clouds])
-        upper, nearest = cKDTree(np.concatenate(clouds)).query(pts)
+        tree = cKDTree(np.concatenate(clouds))
+        upper, nearest = np.empty(len(pts)), np.empty(len(pts), int)
+        # In parts, the deadline read between them: 27 slender blocks (3.9 million samples)
+        # against 240 000 surface points took one 32 s query.
+        for lo in range(0, len(pts), QUERY_CHUNK):
+            check()
+            upper[lo:lo + QUERY_CHUNK], nearest[lo:lo + QUERY_CHUNK] = tree.query(pts[lo:lo + QUERY_CHUNK])
         dist = upper.copy()  # the true distance is in [upper - step, upper]
         # Exact where the bound leaves the verdict open, and near the largest distance.
         todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step) | exact

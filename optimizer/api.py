@@ -644,7 +644,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     scene = problem.scene
     if clock() + coverage_reserve(scene) > problem.deadline:
         return chosen, "no time was left for an attempt with toe rows first"
-    best.coverage = coverage(scene, best.build.placed())
+    best.coverage = problem.coverage(best.build.placed())
+    if best.coverage is None:
+        return chosen, "no time was left to measure the coverage"
     if best.coverage.aims_met() == 2:
         return chosen, None
     if clock() + best.seconds > problem.deadline:
@@ -668,15 +670,16 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         if clock() + coverage_reserve(scene) <= problem.deadline:
             # The rows hold much of their volume outside the prism: blocks that stick out are moved
             # into pockets while the layout stays better covered than the one it would replace.
-            new.coverage = coverage(scene, new.build.placed())
-            trimmed_note = f" and covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
+            new.coverage = problem.coverage(new.build.placed())
+            if new.coverage is not None:
+                trimmed_note = f" and covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
         if new.coverage is not None and new.coverage.better_than(best.coverage):
             reports: list[CoverageReport] = []
 
             def better(aims: int) -> Callable[[Build], bool]:
                 def keep(build: Build) -> bool:
-                    report = coverage(scene, build.placed())
-                    if not report.better_than(best.coverage) or report.aims_met() < aims:
+                    report = problem.coverage(build.placed())
+                    if report is None or not report.better_than(best.coverage) or report.aims_met() < aims:
                         return False
                     reports.append(report)  # the last is the trimmed layout's
                     return True
@@ -698,9 +701,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, (f"{what} came to {new.build.porosity.percent:.2f}% porosity{trimmed_note}, "
                         "so it was not kept")
     if new.coverage is None:
-        if clock() + coverage_reserve(scene) > problem.deadline:
+        if clock() + coverage_reserve(scene) <= problem.deadline:
+            new.coverage = problem.coverage(new.build.placed())
+        if new.coverage is None:
             return chosen, f"{what} reached the count, but no time was left to measure its coverage"
-        new.coverage = coverage(scene, new.build.placed())
     if not new.coverage.better_than(best.coverage):
         return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
     return len(tried) - 1, (f"the layout is that of {what}{trimmed_note}; without them "
@@ -744,8 +748,8 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
         return attempt, None
     t0 = clock()
     if attempt.coverage is None:
-        attempt.coverage = coverage(scene, attempt.build.placed())
-    if attempt.coverage.aims_met() == 2:
+        attempt.coverage = problem.coverage(attempt.build.placed())
+    if attempt.coverage is None or attempt.coverage.aims_met() == 2:
         return attempt, None
     short = replace(problem, deadline=problem.deadline - reserve / 2)
     moved, after, stats = cover_moves(short, attempt.build, attempt.coverage)

@@ -194,3 +194,30 @@ def test_coverage_measured_again_near_a_change_is_the_whole_measure():
         assert np.array_equal(local.bare, whole.bare)
     assert coverage(scene, put).bare_share_percent < before.bare_share_percent
     assert coverage(scene, out).bare_share_percent > before.bare_share_percent
+
+
+def test_the_nearest_sample_search_stops_at_its_deadline(boxes, monkeypatch):
+    """27 slender blocks made one nearest-sample query over 240 000 surface points take 32 s.
+    The query runs in parts, the deadline read before each: one block (so one read before
+    the query, where the block samples are taken) and a clock a second on at each read stop
+    it in its second part, and a deadline past every part measures all of it, as without."""
+    import geometry.coverage as cov
+
+    monkeypatch.setattr(cov, "QUERY_CHUNK", 64)
+    placed = [(0, boxes.block, Pose([0.0, 2.0, 0.5], [1, 0, 0, 0]))]
+    parts = -(-len(surface_samples(boxes).points) // 64)
+    assert parts > 3
+    reads = []
+
+    def clock() -> float:
+        reads.append(1)
+        return float(len(reads))
+
+    with pytest.raises(cov.TimeUp):
+        coverage(boxes, placed, deadline=2.5, clock=clock)
+    assert len(reads) == 3, "the samples' read, the first part's, then the second part's"
+    reads.clear()
+    whole = coverage(boxes, placed)
+    timed = coverage(boxes, placed, deadline=1e9, clock=clock)
+    assert timed.bare_share_percent == whole.bare_share_percent and timed.max_bare_m == whole.max_bare_m
+    assert len(reads) >= 1 + parts

@@ -621,6 +621,26 @@ def test_a_coverage_that_would_overrun_the_limit_is_left_out(tiny, monkeypatch):
     assert cov.coverage(tiny, r.layout.placed(), deadline=clock() + 0.5, clock=clock) is not None
 
 
+def test_the_searchs_coverage_is_none_past_its_deadline(tiny):
+    """The toe rows, the trim, the covering repair and the origin ranking measure coverage
+    through ``Problem.coverage``: by the problem's deadline, or not at all (None), never
+    after it."""
+    from optimizer.search.problem import Problem
+
+    placed = [(0, tiny.block, Pose([0.0, tiny.length / 2, 1.0], [1, 0, 0, 0]))]
+    t = [0.0]
+
+    def clock() -> float:
+        t[0] += 1.0
+        return t[0]
+
+    lattice = lattice_for(tiny.block, tiny.block.name)
+    assert Problem(tiny, 25, 56.0, lattice, deadline=0.5, clock=clock).coverage(placed) is None
+    t[0] = 0.0
+    report = Problem(tiny, 25, 56.0, lattice, deadline=1e9, clock=clock).coverage(placed)
+    assert report is not None and report.bare_share_percent > 50.0
+
+
 def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path, monkeypatch):
     """A 2 km breakwater (about 12 000 blocks) in 4 s of a clock that advances with the work:
     one quick pass of the pattern over it would take 120 of them, so the origin ranking must

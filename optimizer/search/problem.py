@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from geometry.coverage import CoverageReport, Placed, TimeUp, coverage
 from geometry.scene import Scene
 
 from .build import Build
@@ -74,6 +75,14 @@ class Problem:
 
     def time_left(self) -> float:
         return self.deadline - self.clock()
+
+    def coverage(self, placed: Placed) -> CoverageReport | None:
+        """The coverage of ``placed`` (:func:`geometry.coverage.coverage`), or None if it is not
+        measured by the deadline."""
+        try:
+            return coverage(self.scene, placed, deadline=self.deadline, clock=self.clock)
+        except TimeUp:
+            return None
 
     def tell(self, phase: str, build: Build, message: str = "") -> None:
         if self.report is not None:

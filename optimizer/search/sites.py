@@ -13,8 +13,6 @@ from collections.abc import Collection
 import numpy as np
 from scipy.spatial import cKDTree
 
-from geometry.coverage import coverage
-
 from .build import Build, search_window
 from .problem import Problem
 from .shapes import ShapeCache
@@ -94,7 +92,9 @@ def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins
         if problem.now() > stop:
             break
         b = pattern_pass(problem, shapes, start, origins[i], stop, laid)
-        report = coverage(problem.scene, b.placed())
+        report = problem.coverage(b.placed())
+        if report is None:
+            break
         scored.append((-min(len(b), problem.required), -report.aims_met(), report.bare_share_percent, i))
     first = [i for *_, i in sorted(scored)]
     ranked = set(first)
