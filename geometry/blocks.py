@@ -212,11 +212,13 @@ def rest_poses(vertices: np.ndarray) -> tuple[RestPose, ...]:
     v = np.asarray(vertices, dtype=float)
     hull = ConvexHull(v)
     scale = float(np.ptp(v, axis=0).max())
-    _, first = np.unique(np.round(hull.equations / max(scale, tol.length_floor) * 1e6), axis=0,
-                         return_index=True)
+    _, first, plane = np.unique(np.round(hull.equations / max(scale, tol.length_floor) * 1e6), axis=0,
+                                return_index=True, return_inverse=True)
+    carries = np.zeros(len(first), bool)
+    carries[plane.ravel()[_under_centroid(hull, scale)]] = True
     out: list[RestPose] = []
     seen: set[tuple] = set()
-    for i in sorted(first):
+    for i in sorted(first[carries]):
         n, d = hull.equations[i, :3], -hull.equations[i, 3]  # the facet is n . p = d, n outward
         on = np.abs(v @ n - d) <= 1e-6 * scale
         turn, _ = Rotation.align_vectors([[0.0, 0.0, -1.0]], [n])
@@ -242,6 +244,28 @@ def rest_poses(vertices: np.ndarray) -> tuple[RestPose, ...]:
                             _vertical_symmetry(turned, scale)))
     out.sort(key=lambda r: -r.tip_deg)
     return tuple(out)
+
+
+def _under_centroid(hull, scale: float) -> np.ndarray:
+    """Which of the hull's triangles hold the foot of the centroid (the origin) on their plane.
+
+    A facet can carry the solid only where that foot is inside it, and so on one
+    of its triangles: facets with none are left out before the outline of each
+    is drawn (a 5000-facet sphere took 2.2 s, 0.2 ms a facet). Degenerate
+    triangles are kept, to be judged as before.
+    """
+    tri = hull.points[hull.simplices]  # (f, 3, 3)
+    foot = -hull.equations[:, 3:] * hull.equations[:, :3]
+    # Barycentric coordinates of the foot in each triangle (in its plane).
+    e1, e2, w = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], foot - tri[:, 0]
+    d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    w1, w2 = (w * e1).sum(1), (w * e2).sum(1)
+    det = d11 * d22 - d12 * d12
+    flat = det <= 1e-18 * scale**4
+    det = np.where(flat, 1.0, det)
+    u, v = (d22 * w1 - d12 * w2) / det, (d11 * w2 - d12 * w1) / det
+    slack = 1e-9
+    return flat | ((u >= -slack) & (v >= -slack) & (u + v <= 1 + slack))
 
 
 #: Orders of symmetry about the vertical that :func:`rest_poses` looks for, highest first.
@@ -284,8 +308,7 @@ def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
     if name == "shake-4t":
         return shake_block()
     if name == "tetrapod" or name.startswith("tetrapod:"):
-        h = _parse_floats(name, name.partition(":")[2] or "2.0", 1)[0]
-        return tetrapod(h)
+        return tetrapod(2.0 if name == "tetrapod" else _parse_floats(name, name[len("tetrapod:"):], 1)[0])
     if name.startswith("box:"):
         a, b, c = _parse_floats(name, name[4:].replace("x", ","), 3)
         return box_block(a, b, c)
@@ -299,13 +322,17 @@ def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
     )
 
 
+#: The sizes a block may have, metres: a box's edges, a tetrapod's height, a mesh's extent.
+MIN_SIZE, MAX_SIZE = 0.05, 100.0
+
+
 def _parse_floats(name: str, text: str, n: int) -> list[float]:
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) != n or not all(np.isfinite(v) and 0.05 <= v <= 100.0 for v in values):
-        raise InputError(f"block type {name!r}: expected {n} size(s) between 0.05 and 100 m")
+    if len(values) != n or not all(np.isfinite(v) and MIN_SIZE <= v <= MAX_SIZE for v in values):
+        raise InputError(f"block type {name!r}: expected {n} size(s) between {MIN_SIZE:g} and {MAX_SIZE:g} m")
     return values
 
 
@@ -473,6 +500,11 @@ def mesh_block(path: str, name: str | None = None) -> Block:
         raise InputError(f"{path}: mesh is not watertight (it has holes or open edges)")
     if not mesh.is_winding_consistent:
         raise InputError(f"{path}: mesh triangles are not consistently wound")
+    size = float(np.ptp(mesh.vertices, axis=0).max())
+    if not MIN_SIZE <= size <= MAX_SIZE:
+        raise InputError(f"{path}: the block is {size:g} m across, and blocks are {MIN_SIZE:g} to "
+                         f"{MAX_SIZE:g} m (mesh files are read in metres: one in millimetres "
+                         "must be scaled by 0.001)")
     if mesh.volume <= tol.volume:
         if mesh.volume < -tol.volume:
             mesh.invert()

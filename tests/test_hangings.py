@@ -63,3 +63,27 @@ def test_a_hanging_the_block_has_not_is_an_error(shake, cube):
         hanging_of(cube, "crown", 0.0)
     with pytest.raises(ValueError, match="no hanging"):
         hanging_of(cube, "rest-2", 0.0)
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod:2", "box:2x1x0.8", "random hulls"])
+def test_rest_poses_found_from_the_facets_under_the_centroid_are_those_of_every_facet(name, monkeypatch):
+    """Facets whose triangles do not hold the centroid's foot are left out before their
+    outline is drawn (a 5000-facet sphere took 2.2 s); the rest poses are the same as when
+    every facet is drawn."""
+    import trimesh
+
+    import geometry.blocks as blocks
+
+    rng = np.random.default_rng(7)
+    solids = [get_block(name).vertices] if name != "random hulls" else [
+        (m := trimesh.convex.convex_hull(rng.normal(size=(int(rng.integers(6, 80)), 3))
+                                         * rng.uniform(0.3, 2.0, 3))).vertices - m.center_mass
+        for _ in range(25)]
+    for v in solids:
+        found = blocks.rest_poses(v)
+        with monkeypatch.context() as m:
+            m.setattr(blocks, "_under_centroid", lambda hull, scale: np.ones(len(hull.simplices), bool))
+            every = blocks.rest_poses(v)
+        assert [(p.tip_deg, p.symmetry) for p in found] == [(p.tip_deg, p.symmetry) for p in every]
+        for p, q in zip(found, every, strict=True):
+            np.testing.assert_array_equal(p.quaternion, q.quaternion)

@@ -22,6 +22,7 @@ import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.optimize import linprog
 
 from geometry.blocks import Block
 from geometry.constants import tol
@@ -150,6 +151,8 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
     moving piece's lower side and the fixed piece's upper side, whose
     projections hold every breakpoint of bottom_P and top_Q.
     """
+    if len(moving.normals) + len(fixed.normals) > MANY_PLANES:
+        return _rest_height_lp(moving, fixed, offset_xy)
     me, mvert = moving_lower
     fe, fvert = fixed_upper
     mv = mvert[:, :2] + offset_xy
@@ -162,6 +165,26 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
     if not ok.any():
         return -np.inf
     return float(np.max(q_hi[ok] - p_lo[ok]))
+
+
+#: Pieces with more planes than this between them are lowered by a linear programme: the
+#: breakpoints of two 2500-vertex spheres (thousands of edge crossings, each crossed with
+#: 5000 planes) took 0.7 s a drop.
+MANY_PLANES = 200
+
+
+def _rest_height_lp(moving: ConvexPolytope, fixed: ConvexPolytope, offset_xy: np.ndarray) -> float:
+    """:func:`rest_height` as the most that a point ``a`` of ``fixed`` can stand over a point
+    ``b`` of ``moving`` straight under it (``a_xy = b_xy + offset_xy``): the top of one minus the
+    bottom of the other is concave, so its largest value over their common footprint is the
+    optimum of a linear programme in ``(b_x, b_y, a_z, b_z)``."""
+    nq, nm = fixed.normals, moving.normals
+    a_ub = np.zeros((len(nq) + len(nm), 4))
+    a_ub[:len(nq), :2], a_ub[:len(nq), 2] = nq[:, :2], nq[:, 2]
+    a_ub[len(nq):, :2], a_ub[len(nq):, 3] = nm[:, :2], nm[:, 2]
+    b_ub = np.concatenate([fixed.offsets - nq[:, :2] @ offset_xy, moving.offsets])
+    res = linprog([0.0, 0.0, -1.0, 1.0], A_ub=a_ub, b_ub=b_ub, bounds=[(None, None)] * 4, method="highs")
+    return -float(res.fun) if res.status == 0 else -np.inf
 
 
 class DropWorld:
