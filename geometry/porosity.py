@@ -213,7 +213,8 @@ class VoxelGrid:
         self.prism_mask = ((k >= k0[:, None]) & (k <= k1[:, None])).reshape(self.shape)
         self.prism_count = int(np.count_nonzero(self.prism_mask))
         if self.prism_count == 0:
-            raise InputError("voxel grid: no voxel lies in the design prism; use more divisions")
+            raise InputError("voxel grid: no voxel lies in the design prism; "
+                             "use more divisions or a smaller voxel size")
 
     @classmethod
     def for_scene(cls, scene: Scene, method: str, divisions: int | None = None,

@@ -314,7 +314,7 @@ def optimize(
     report: Callable[[str, Build, str], None] | None = None,
     bound: bool = False,
     clock: Clock = time.monotonic,
-    keep: Sequence[Placement] = (),
+    keep: Sequence[Placement] | None = None,
     started: float | None = None,
     cover: bool = True,
 ) -> OptimizeResult:
@@ -352,7 +352,7 @@ def optimize(
         A partial layout to complete (``shoha optimize --keep``): its blocks
         stay exactly where they are, first in crane order, and the search
         places the rest around and on them. Each must be of the scene's block
-        type.
+        type. Given, even empty, the result reports them (``kept``).
     started : float, optional
         The ``clock`` reading when the caller's job began, if before this
         call: ``shoha optimize`` passes the time before it read the scene and
@@ -371,6 +371,7 @@ def optimize(
         raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
                          "shoha optimize places blocks in 3D scenes")
     start = clock() if started is None else min(started, clock())
+    kept_given, keep = keep is not None, tuple(keep or ())
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     rng = np.random.default_rng(seed)
     if lattice is None:
@@ -459,7 +460,7 @@ def optimize(
         coverage=report_.coverage.to_dict() if report_.coverage is not None else None,
         time_limit_s=time_limit,
         kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
-        if keep else None,
+        if kept_given else None,
         cover_attempt=cover_note,
         searched=best.searched,
         shortfall=shortfall(best.phases, problem.required, len(build), time_limit, bool(keep)),
@@ -485,7 +486,8 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
                 f"{last['fruitless']} rounds in a row in which none came to rest inside the "
                 "tolerance zone")
     if last["ended"] == "time":
-        return f"the time ran out (limit {time_limit:.0f} s): a longer --time-limit may place more"
+        return (f"the search's time ran out (the limit of {time_limit:g} s, less what the settle and "
+                "checks keep): a longer --time-limit may place more")
     return None
 
 

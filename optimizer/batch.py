@@ -395,7 +395,7 @@ class RowFile:
                 row = json.loads(line)
             except json.JSONDecodeError:
                 raise InputError(f"{self.path}: line {n} is not JSON; use a new --out") from None
-            if not isinstance(row, dict) or "item" not in row:
+            if not isinstance(row, dict) or not isinstance(row.get("item"), str):
                 raise InputError(f"{self.path}: line {n} is not a batch row; use a new --out")
             rows.append(row)
         return rows

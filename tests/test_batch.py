@@ -248,6 +248,10 @@ def test_row_file_cuts_a_torn_last_line_and_refuses_other_files(tmp_path):
     lines.write_text('{"item": "a"}\nnot json\n')
     with pytest.raises(InputError):
         RowFile(lines, SCORE_COLUMNS).read()
+    for bad in ('{"item": NaN}', '{"item": 3}', '{"item": null}', '{"score": 1}'):
+        lines.write_text('{"item": "a"}\n' + bad + "\n")
+        with pytest.raises(InputError, match="line 2 is not a batch row"):
+            RowFile(lines, SCORE_COLUMNS).read()
     with pytest.raises(InputError):
         RowFile(tmp_path / "rows.txt", SCORE_COLUMNS)
 

@@ -185,6 +185,10 @@ def _one_triangle_stl(path):
     ("mesh:tri.stl", lambda d: _one_triangle_stl(d / "tri.stl"), "1 triangle(s)"),
     ("mesh:.", lambda d: None, "is a folder, not a mesh file"),
     ("tetrapod:0.01", lambda d: None, "between 0.05 and 100 m"),
+    ("tetrapod:", lambda d: None, "between 0.05 and 100 m"),
+    # A mesh in millimetres read as metres: a 2 km block, not a 2 m one.
+    ("mesh:mm.stl", lambda d: trimesh.creation.box([2000.0, 1500.0, 1000.0]).export(d / "mm.stl"),
+     "the block is 2000 m across, and blocks are 0.05 to 100 m (mesh files are read in metres"),
 ])
 def test_a_scene_with_a_bad_block_names_the_scene_file_and_the_problem(tmp_path, block, make, said):
     make(tmp_path)

@@ -120,6 +120,8 @@ def test_keep_input_errors(tmp_path, partial):
         assert not out.exists(), what
         if keep.exists() and keep != partial:
             assert str(keep) in r.stderr, (what, r.stderr)  # the message names the file
+        if what == "another scene":  # no reference in an optimize: the scene optimized
+            assert "scene 'tetrapod' is not the optimized scene 'mini'" in r.stderr, r.stderr
     assert partial.read_bytes() == before
 
 
@@ -152,3 +154,13 @@ def test_a_whole_layout_kept_gains_no_block(mini):
     result = optimize(mini, seed=1, time_limit=30.0, keep=ref, settle_layout=False, cover=False)
     assert result.blocks == mini.required_blocks and result.valid
     assert [p.pose for p in result.layout.blocks] == [p.pose for p in ref]
+    assert result.kept == {"blocks": 75, "colliding": [], "out_of_tolerance": [], "unstable": []}
+
+
+def test_an_empty_kept_layout_is_reported_as_kept_and_without_keep_not(mini):
+    """``kept`` says what --keep kept, nothing included (it was null for an empty file), and is
+    null without --keep."""
+    empty = optimize(mini, seed=1, time_limit=2.0, keep=[], settle_layout=False, cover=False)
+    assert empty.kept == {"blocks": 0, "colliding": [], "out_of_tolerance": [], "unstable": []}
+    assert empty.to_dict()["kept"] == empty.kept
+    assert optimize(mini, seed=1, time_limit=2.0, settle_layout=False, cover=False).kept is None

@@ -86,13 +86,13 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     # A mesh block's first cut into convex pieces may take at most this share of the limit.
     with cut_by(started + CUT_SHARE * (time_limit or MIN_DEFAULT_LIMIT)):
         scene = load_scene(scene_name)
-    keep = []
+    keep = None
     if keep_path is not None:
         if path.resolve() == Path(keep_path).resolve():
             raise InputError(f"--out {out}: is the --keep file; write the completed layout elsewhere")
         partial, partial_scene = load_save(keep_path, source, scene.reference(), scene, block_type,
                                            parse_origin(origin))
-        check_same_scene(partial_scene, scene, keep_path)
+        check_same_scene(partial_scene, scene, keep_path, against="the optimized")
         keep = partial.blocks
         last = max((p.id for p in keep), default=-1)
         if last + scene.required_blocks > MAX_ID:

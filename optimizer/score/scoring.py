@@ -710,10 +710,11 @@ class ScoreReport:
         return "\n".join(lines)
 
 
-def check_same_scene(scene: Scene, reference: Scene, where: str) -> None:
-    """Raise InputError if a save and the reference are not for the same breakwater."""
+def check_same_scene(scene: Scene, reference: Scene, where: str, against: str = "the reference's") -> None:
+    """Raise InputError if a save and the reference (or ``against`` another: "the optimized")
+    are not for the same breakwater."""
     if scene.design != reference.design or scene.block_type != reference.block_type:
-        raise InputError(f"{where}: scene {scene.name!r} is not the reference's scene {reference.name!r}")
+        raise InputError(f"{where}: scene {scene.name!r} is not {against} scene {reference.name!r}")
 
 
 def score(
