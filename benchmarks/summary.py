@@ -503,6 +503,15 @@ def values() -> dict[str, Any]:
         )
         v["keep_rows"] = kp
 
+    tl = rows("time_limits")
+    if tl:
+        v["time_limits_table"] = table(
+            "<scene | <cut cached | limit (s) | wall (s) | past the limit (s) | <within 2 s | exit | blocks",
+            [[r["scene"], r["cut_cached"], r["time_limit_s"], r["wall_s"], r["past_limit_s"], r["within_2_s"],
+              r["exit_status"], f"{r['blocks']} of {r['required_blocks']}" if r["blocks"] else "(refused)"]
+             for r in tl],
+        )
+
     st = rows("serve_stacks")
     if st:
         v["stacks_table"] = table(
@@ -571,6 +580,8 @@ SUMMARY = [
         "{held_out_table}",
     ),
     ("`shoha optimize --keep` on mini, 30 blocks kept (`keep.csv`)", ["keep_table"], "{keep_table}"),
+    ("`--time-limit` on scenes made to break it (`time_limits.csv`)", ["time_limits_table"],
+     "{time_limits_table}"),
     ("`make bench` wall time (`run_all.csv`)", ["runs_table"], "{runs_table}"),
 ]
 
