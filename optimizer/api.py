@@ -368,8 +368,8 @@ def optimize(
         (:func:`cover_repair`; kept blocks never move).
     """
     if scene.kind != "3d":
-        raise InputError(f"{scene.name}: a {scene.kind} scene is a 2D slice for physics checks; "
-                         "shoha optimize places blocks in 3D scenes")
+        raise InputError(f"{scene.source or scene.name}: a {scene.kind} scene is a 2D slice for physics "
+                         "checks; shoha optimize places blocks in 3D scenes")
     start = clock() if started is None else min(started, clock())
     kept_given, keep = keep is not None, tuple(keep or ())
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)

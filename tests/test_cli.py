@@ -239,3 +239,11 @@ def test_wheel_holds_exactly_the_three_packages(tmp_path):
     top = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert top == {"geometry", "settle", "optimizer"}
     assert "geometry/scenes/mini.toml" in names
+
+
+def test_optimize_refuses_a_section_scene_naming_its_file(tmp_path):
+    section = tmp_path / "slice.toml"
+    section.write_text((ROOT / "geometry" / "scenes" / "mini-section.toml").read_text())
+    r = shoha("optimize", str(section), "--out", str(tmp_path / "out.json"), "--time-limit", "3")
+    _assert_bad(r, str(section))
+    assert "a section scene is a 2D slice" in r.stderr and not (tmp_path / "out.json").exists()
