@@ -104,18 +104,19 @@ RESERVE_MARGIN = 2.0
 RESERVE_SHARE = 0.5
 
 
-def settle_reserve(scene: Scene) -> float:
-    """Seconds kept for the settles that confirm a layout (two kicks, ``physics.verdict``; repairs
-    take what time is left)."""
-    n, pieces = scene.required_blocks, len(scene.block.pieces)
+def settle_reserve(scene: Scene, blocks: int | None = None) -> float:
+    """Seconds kept for the settles that confirm a layout of ``blocks`` (the required count by
+    default; two kicks, ``physics.verdict``; repairs take what time is left)."""
+    n, pieces = blocks or scene.required_blocks, len(scene.block.pieces)
     ground = max(SETTLE_FACTOR_ROUGH if scene.foundation.kind == "rough" else 1.0,
                  SETTLE_FACTOR_WALL if scene.design.wall_x is not None else 1.0)
     return 2 * RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5 * ground
 
 
-def check_reserve(scene: Scene) -> float:
-    """Seconds kept for the final checks: counts, tolerance, collisions and porosity."""
-    return RESERVE_MARGIN * (CHECK_SECONDS[0] + CHECK_SECONDS[1] * scene.required_blocks)
+def check_reserve(scene: Scene, blocks: int | None = None) -> float:
+    """Seconds kept for the final checks of ``blocks`` (the required count by default): counts,
+    tolerance, collisions and porosity."""
+    return RESERVE_MARGIN * (CHECK_SECONDS[0] + CHECK_SECONDS[1] * (blocks or scene.required_blocks))
 
 
 def coverage_reserve(scene: Scene) -> float:
@@ -378,9 +379,11 @@ def optimize(
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
         lattice = lattice_for(scene.block, scene.block_type, min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS),
                               clock)
-    # The search ends early enough for the confirming settle and the final checks.
-    reserve = min(RESERVE_SHARE * time_limit, check_reserve(scene) + coverage_reserve(scene)
-                  + (settle_reserve(scene) if settle_layout else 0.0))
+    # The search ends early enough for the confirming settle and the final checks, of the kept
+    # blocks too (5000 kept ones, far apart, took 31 s of a 10 s limit when only the count was).
+    n = max(scene.required_blocks, len(keep))
+    reserve = min(RESERVE_SHARE * time_limit, check_reserve(scene, n) + coverage_reserve(scene)
+                  + (settle_reserve(scene, n) if settle_layout else 0.0))
     problem = Problem(
         scene=scene,
         required=scene.required_blocks,
@@ -392,7 +395,8 @@ def optimize(
         clock=clock,
     )
     strategies_run = list(strategies) if strategies is not None else default_strategies(bound)
-    end = start + time_limit - min(RESERVE_SHARE * time_limit, check_reserve(scene) + coverage_reserve(scene))
+    end = start + time_limit - min(RESERVE_SHARE * time_limit,
+                                   check_reserve(scene, n) + coverage_reserve(scene))
     tried: list[_Attempt] = []
     for attempt in range(1, ATTEMPTS + 1):
         tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
@@ -431,7 +435,7 @@ def optimize(
     # may not); without it the result says so.
     left = start + time_limit - clock()
     known = best.coverage  # measured already to choose the attempt (covered_attempt)
-    measure = known is None and left >= check_reserve(scene) + coverage_reserve(scene)
+    measure = known is None and left >= check_reserve(scene, n) + coverage_reserve(scene)
     report_ = check_layout(scene, layout.placed(), with_coverage=False)
     report_.coverage = known
     if measure:

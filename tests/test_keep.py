@@ -102,7 +102,16 @@ def test_keep_input_errors(tmp_path, partial):
     near_last_id = tmp_path / "near-last-id.json"  # new ids would pass 2**53, which no reader takes
     write_layout(Layout("mini", [Placement(2**53 - 10 + i, p.type, p.pose)
                                  for i, p in enumerate(layout.blocks[:10])]), near_last_id)
+    crowded = tmp_path / "crowded.json"  # 1000 copies of one pose ran 200 s past a 10 s limit
+    write_layout(Layout("mini", [Placement(i, layout.blocks[0].type, layout.blocks[0].pose)
+                                 for i in range(1000)]), crowded)
+    too_many = tmp_path / "too-many.json"  # 5000 blocks far apart took 28 s of a 10 s limit
+    write_layout(Layout("mini", [Placement(i, layout.blocks[0].type,
+                                           Pose([50.0 * (i % 100), 50.0 * (i // 100), 1.0], [1, 0, 0, 0]))
+                                 for i in range(500)]), too_many)
     cases = {
+        "more blocks than the tolerance zone holds": (too_many, out),
+        "blocks one inside another by the dozen": (crowded, out),
         "ids near 2**53": (near_last_id, out),
         "another scene": (tetrapod, out),
         "another block type": (wrong_type, out),
@@ -164,3 +173,21 @@ def test_an_empty_kept_layout_is_reported_as_kept_and_without_keep_not(mini):
     assert empty.kept == {"blocks": 0, "colliding": [], "out_of_tolerance": [], "unstable": []}
     assert empty.to_dict()["kept"] == empty.kept
     assert optimize(mini, seed=1, time_limit=2.0, settle_layout=False, cover=False).kept is None
+
+
+@pytest.mark.parametrize("name", ["shake-4t", "tetrapod:2", "box:1.6x1.6x1.6"])
+def test_the_crowding_bound_holds_for_the_densest_packing_of_the_block(name):
+    """``most_within_reach`` bounds how many blocks can reach one without overlaps. The
+    densest packing of copies of one pose is a lattice whose neighbours touch: it stays under
+    the bound, and the same count squeezed to a quarter of the spacing, overlapping, is refused."""
+    from geometry.blocks import get_block
+    from geometry.checks import check_not_crowded, most_within_reach
+    from geometry.errors import InputError
+
+    block = get_block(name)
+    step = np.ptp(block.vertices, axis=0)  # boxes of the block's extent: no two copies overlap
+    grid = np.stack(np.meshgrid(*[np.arange(-6, 7)] * 3, indexing="ij"), -1).reshape(-1, 3) * step
+    ids = list(range(len(grid)))
+    check_not_crowded(block, grid, ids, "lattice")
+    with pytest.raises(InputError, match=f"more than the {most_within_reach(block)} that could lie there"):
+        check_not_crowded(block, grid / 4, ids, "squeezed")

@@ -73,7 +73,10 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     how to read it.
     """
     started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
+    import numpy as np
+
     from geometry.blocks import cut_by
+    from geometry.checks import check_not_crowded
     from geometry.layout import MAX_ID, write_layout
     from geometry.scene import load_scene
     from optimizer.api import MIN_DEFAULT_LIMIT, optimize
@@ -103,6 +106,13 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
         if other is not None:  # the file is named here, where it is known
             raise InputError(f"{keep_path}: kept block {other.id} is a {other.type!r}; the scene places "
                              f"{scene.block_type!r} (one block type a scene)")
+        room = int(scene.tolerance.volume / scene.block.volume)  # blocks the zone holds at most
+        if len(keep) > room:
+            # The kept blocks are settled and checked within the limit: 5000 of them took 28 s of 10.
+            raise InputError(f"{keep_path}: {len(keep)} kept blocks, and at most {room} fit in the scene's "
+                             f"tolerance zone ({scene.tolerance.volume:.1f} m³) without overlapping")
+        check_not_crowded(scene.block, np.array([p.pose.position for p in keep]).reshape(-1, 3),
+                          [p.id for p in keep], keep_path)
     names = strategy_names + (",cpsat" if bound and "cpsat" not in strategy_names.split(",") else "")
     strategies = _strategies(names)
     with _Progress(scene.required_blocks, scene.target_porosity) as progress:
