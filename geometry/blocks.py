@@ -568,7 +568,7 @@ def _check_stl(p: Path) -> None:
 # cache key with the version.
 _FACET_OUTSIDE = 1e-4
 _FACET_MAX_TESTS = 1500
-_FACET_VERSION = 1
+_FACET_VERSION = 2
 
 
 def _facet_pieces(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, digest: str, path: str
@@ -652,19 +652,25 @@ def _grow_facets(vertices: np.ndarray, faces: np.ndarray, solid: m3.Manifold, pa
         groups.append(vertices[sorted(points)])
         if len(groups) > _COACD_MAX_HULLS:
             return None
-    hulls = [m3.Manifold.hull_points(g) for g in groups]
+    # A flat hull holds nothing (one face of a ring of boxes grew no further).
+    hulls = [h for h in (m3.Manifold.hull_points(g) for g in groups) if h.volume() > limit]
     # A piece inside the others adds nothing; the smallest go first.
     for i in sorted(range(len(hulls)), key=lambda i: hulls[i].volume()):
         rest = [h for j, h in enumerate(hulls) if j != i and h is not None]
         if rest and (hulls[i] - m3.Manifold.batch_boolean(rest, m3.OpType.Add)).volume() <= limit:
             hulls[i] = None
     hulls = [h for h in hulls if h is not None]
+    if not hulls:
+        return None
     missed = solid - m3.Manifold.batch_boolean(hulls, m3.OpType.Add)
     for part in missed.decompose() if missed.volume() > limit else []:
         points = np.asarray(part.to_mesh64().vert_properties, float)[:, :3]
         if len(points) >= 4 and part.volume() > limit and outside(points) <= limit:
             hulls.append(m3.Manifold.hull_points(points))
+    # Pieces that leave part of the block out would let others pass through it: CoACD then.
     if len(hulls) > _COACD_MAX_HULLS:
+        return None
+    if (solid - m3.Manifold.batch_boolean(hulls, m3.OpType.Add)).volume() > limit:
         return None
     return [np.asarray(h.to_mesh64().vert_properties, float)[:, :3] for h in hulls]
 
