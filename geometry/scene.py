@@ -315,8 +315,10 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     length = _num(design, "length_m", source, lo=0.0, lo_open=True)
     rise_run = design.get("slope_rise_run")
     if (not isinstance(rise_run, list) or len(rise_run) != 2
-            or not all(_is_num(v) and 0 < v < 1e6 for v in rise_run)):
-        raise InputError(f"{source}: [design] slope_rise_run must be two positive numbers, e.g. [3, 4]")
+            or not all(_is_num(v) and 0 < v < 1e6 for v in rise_run)
+            or not 1e-3 <= rise_run[1] / rise_run[0] <= 1e3):
+        raise InputError(f"{source}: [design] slope_rise_run must be two positive numbers below 1e6, "
+                         "the run from 1/1000 to 1000 times the rise, e.g. [3, 4]")
     slope = float(rise_run[1]) / float(rise_run[0])
     wall = design.get("wall", False)
     if not isinstance(wall, bool):

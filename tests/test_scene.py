@@ -89,7 +89,11 @@ def test_rough_foundation_is_seeded_and_bounded(tmp_path):
         (MINI_TOML + "[foundation]\nkind = 'lava'\n", "flat or rough"),
         (MINI_TOML + "[tolerance]\nend_extension_m = 1e6\n", r"bad.toml: \[tolerance\] end_extension_m"),
         (MINI_TOML + "[tolerance]\ncrest_rise_m = 5000\n", "bad.toml: tolerance: slope length"),
-        (MINI_TOML.replace("[3.0, 4.0]", "[1e-9, 4]"), "bad.toml: the design prism .* takes"),
+        (MINI_TOML.replace("[3.0, 4.0]", "[1, 1000]").replace("12.220833333333333", "10000"),
+         "bad.toml: the design prism .* takes"),
+        # A run 1e300 times the rise overflowed, with a warning on stderr; 1e300 is not "positive"'s fault.
+        (MINI_TOML.replace("[3.0, 4.0]", "[1e-300, 1]"), "run from 1/1000 to 1000 times the rise"),
+        (MINI_TOML.replace("[3.0, 4.0]", "[1e300, 1e300]"), "two positive numbers below 1e6"),
     ],
 )
 def test_bad_scene_files_are_input_errors(text, message):
