@@ -93,6 +93,11 @@ from geometry.scene import Scene
 from .base import Diverged, Progress, Run, SettleBackend, SettleBody
 from .section import foundation_profile
 
+# MuJoCo prints its warnings ("Too many contacts...") on stderr, where a `--json` run's
+# one-line summary is read; the settle reads the same warnings from ``data.warning`` and says
+# what they mean (``_check_health``: no answer, diverged).
+mujoco.set_mju_user_warning(lambda text: None)
+
 #: Thickness of the static foundation box below z = 0, and of the solid part
 #: of a rough height field below its lowest point, metres. Thick enough that
 #: no block, falling at a few m/s, tunnels through in one step.
