@@ -93,11 +93,6 @@ from geometry.scene import Scene
 from .base import Diverged, Progress, Run, SettleBackend, SettleBody
 from .section import foundation_profile
 
-# MuJoCo prints its warnings ("Too many contacts...") on stderr, where a `--json` run's
-# one-line summary is read; the settle reads the same warnings from ``data.warning`` and says
-# what they mean (``_check_health``: no answer, diverged).
-mujoco.set_mju_user_warning(lambda text: None)
-
 #: Thickness of the static foundation box below z = 0, and of the solid part
 #: of a rough height field below its lowest point, metres. Thick enough that
 #: no block, falling at a few m/s, tunnels through in one step.
@@ -318,10 +313,17 @@ class MujocoBackend(SettleBackend):
         done = [0]
 
         def advance(n: int) -> None:
+            # MuJoCo prints its warnings ("Too many contacts...") on stderr, where a --json
+            # run's one-line summary is read; they are read from ``data.warning`` instead
+            # (``_check_health``: no answer, diverged). The handler is set only while MuJoCo
+            # steps: one left set at exit made nanobind report leaks on stderr.
+            mujoco.set_mju_user_warning(_quiet)
             try:
                 mujoco.mj_step(model, data, nstep=n)
             except mujoco.FatalError as exc:  # its stack overflowed: blocks one inside another
                 raise Diverged(f"MuJoCo stopped at step {done[0]}: {exc}") from exc
+            finally:
+                mujoco.set_mju_user_warning(None)
             done[0] += n
             self._check_health(data, done[0])
 
@@ -341,6 +343,10 @@ class MujocoBackend(SettleBackend):
             raise Diverged(f"MuJoCo ran out of contact memory at step {steps} (blocks inside one another)")
         if data.warning[w.mjWARN_BADQACC].number or not np.isfinite(data.qpos).all():
             raise Diverged(f"MuJoCo diverged at step {steps} (non-finite accelerations)")
+
+
+def _quiet(text: str) -> None:
+    """MuJoCo's warning handler while it steps: nothing printed (see ``simulate``)."""
 
 
 def free_order(bodies: Sequence[SettleBody]) -> list[int]:
