@@ -582,6 +582,10 @@ def test_summary_says_when_porosity_misses_the_target():
                                    "lies outside the design prism, in the tolerance zone")
     assert "points" not in replace(full, porosity_percent=50.9).summary()
     assert full.summary().count("\n") == 1
+    # Kept blocks one inside another: their overlap is in the figure, and it need not be in the zone.
+    overlapping = replace(full, collisions=4)
+    assert overlapping.summary().endswith("12.8 m³ of the blocks lies outside the design prism or inside "
+                                          "other blocks")
     low = replace(full, porosity_percent=47.0)
     assert low.summary().endswith("\nporosity is 3.00 points below the target")
     short = replace(full, blocks=70)  # the count's own line says what is wrong
