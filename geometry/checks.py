@@ -92,8 +92,18 @@ def check_layout(scene: Scene, placed: Sequence[tuple[int, Block, Pose]],
 def most_within_reach(block: Block) -> int:
     """The most blocks of ``block``'s shape whose bounding spheres can reach a given one's with no
     two overlapping: each lies within three bounding radii of its centroid, so at most that
-    sphere's volume over the block's (86 Shake Blocks)."""
+    sphere's volume over the block's (84 Shake Blocks)."""
     return int(4.0 / 3.0 * math.pi * (3.0 * block.bounding_radius) ** 3 / block.volume)
+
+
+def crowding(block: Block, key: int, near: int) -> str | None:
+    """What is wrong where block ``key`` has ``near`` blocks within reach, more than
+    :func:`most_within_reach` allows; None where it has not."""
+    most = most_within_reach(block)
+    if near <= most:
+        return None
+    return (f"block {key} has {near} blocks within reach, more than the {most} that could lie there "
+            "without overlapping; blocks one inside another by the dozen are not a layout")
 
 
 def check_not_crowded(block: Block, positions: np.ndarray, ids: Sequence[int], where: str) -> None:
@@ -103,11 +113,9 @@ def check_not_crowded(block: Block, positions: np.ndarray, ids: Sequence[int], w
     1000 blocks in a 12 m cube), which no crane lays; its pairwise checks grow with the
     square of the count (100 copies of one pose took 25 s in ``shoha serve``).
     """
-    if len(positions) <= (most := most_within_reach(block)):
+    if len(positions) <= most_within_reach(block):
         return
     counts = cKDTree(positions).query_ball_point(positions, 2.0 * block.bounding_radius, return_length=True)
     worst = int(np.argmax(counts))
-    if counts[worst] - 1 > most:
-        raise InputError(f"{where}: block {ids[worst]} has {counts[worst] - 1} blocks within reach, more "
-                         f"than the {most} that could lie there without overlapping; blocks one inside "
-                         "another by the dozen are not a layout")
+    if (wrong := crowding(block, ids[worst], int(counts[worst]) - 1)) is not None:
+        raise InputError(f"{where}: {wrong}")

@@ -50,8 +50,7 @@ from typing import Any
 import numpy as np
 
 from geometry.checks import CheckReport, check_layout
-from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION, CoverageReport, coverage
-from geometry.coverage import TimeUp as CoverageTimeUp
+from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION, CoverageReport
 from geometry.errors import InputError
 from geometry.layout import Layout, Placement
 from geometry.scene import Scene
@@ -447,11 +446,7 @@ def optimize(
     if measure:
         # Its estimate holds for blocks like the built-in ones; long slender blocks take far
         # longer, so the measure stops at the limit (+1 s) and is left out.
-        try:
-            report_.coverage = coverage(scene, layout.placed(), deadline=start + time_limit + 1.0,
-                                        clock=clock)
-        except CoverageTimeUp:
-            report_.coverage = None
+        report_.coverage = replace(problem, deadline=start + time_limit + 1.0).coverage(layout.placed())
     return OptimizeResult(
         layout=layout,
         porosity_percent=report_.porosity_percent,

@@ -45,7 +45,7 @@ import manifold3d as m3
 import numpy as np
 
 from geometry.blocks import Block
-from geometry.checks import most_within_reach
+from geometry.checks import crowding
 from geometry.clip import solid_volume_inside, volume_below, volume_inside
 from geometry.collision import CollisionWorld
 from geometry.constants import tol
@@ -184,15 +184,13 @@ class LiveLayout:
         """Lay block ``key`` at ``pose``, or move it there if it is laid already.
 
         A BodyError (422), with nothing changed, where more blocks would reach it than could
-        without overlapping (:func:`geometry.checks.most_within_reach`): each block is
+        without overlapping (:func:`geometry.checks.crowding`): each block is
         intersected with every block it touches, and 4999 copies of one pose held the
         service for minutes.
         """
         near = len(self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,)))
-        if near > (most := most_within_reach(block)):
-            raise BodyError(422, f"block {key}: {near} blocks within reach, more than the {most} that could "
-                                 "lie there without overlapping; blocks one inside another by the dozen "
-                                 "are not a layout")
+        if (wrong := crowding(block, key, near)) is not None:
+            raise BodyError(422, wrong)
         if key in self._blocks:
             self._take_out(key, keep_slot=True)
         else:
