@@ -21,15 +21,17 @@ The pipeline, each step a pluggable strategy instance:
 4. a physics settle confirms that the layout stands; unstable blocks are
    repaired (taken out, with whatever rests on them, and placed again) and
    the layout is settled again;
-5. if the layout is still short of its count (or does not stand) and the time
-   its search took is left before the deadline, steps 1-4 run again on the
-   same random stream (up to ``ATTEMPTS`` in all), and the best layout is kept;
-6. if the best layout reaches its count and stands but is over its porosity
+5. if the layout reaches its count and stands but is over its porosity
    window, blocks that stick out of the design prism are moved into pockets
-   inside it (:func:`trim_repair`, ``search.trim``);
+   inside it, and the layout nearer the window is kept if it stands
+   (:func:`trim_repair`, ``search.trim``);
+6. if the layout is still short of its count, does not stand, or is off its
+   porosity window, and the time its search took is left before the
+   deadline, steps 1-5 run again on the same random stream (up to
+   ``ATTEMPTS`` in all), and the best layout is kept;
 7. if the best layout reaches its count and porosity but leaves the mound's
    surface bare, and its time is left, one more attempt lays rows along the
-   toes first (:func:`covered_attempt`; trimmed as in 6 if it covers better
+   toes first (:func:`covered_attempt`; trimmed as in 5 if it covers better
    but is over the window), and is kept if it covers better;
 8. if the layout kept still leaves the surface bare, blocks that carry
    nothing are moved one by one to where they cover most bare area, within
@@ -405,14 +407,15 @@ def optimize(
     tried: list[_Attempt] = []
     for attempt in range(1, ATTEMPTS + 1):
         tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
+        if settle_layout:
+            # A layout at its count over its porosity window: blocks that stick out moved in,
+            # before another attempt is weighed (a trim that brings it in saves one).
+            tried[-1], trim = trim_repair(problem, tried[-1], rng, attempt, end)
+            if trim is not None:
+                tried[-1].phases.append(trim)
         if not tried[-1].another(problem, clock()):
             break
     chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
-    if settle_layout:
-        # A layout at its count over its porosity window: blocks that stick out moved in.
-        tried[chosen], trim = trim_repair(problem, tried[chosen], rng, chosen + 1, end)
-        if trim is not None:
-            tried[chosen].phases.append(trim)
     cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
         chosen, cover_note = covered_attempt(problem, strategies_run, tried, chosen, rng, settle_layout, end)
@@ -539,13 +542,14 @@ class _Attempt:
         return len(self.build) >= problem.required and self.stable is not False
 
     def another(self, problem: Problem, now: float) -> bool:
-        """Whether to search again after this attempt: it is short of its count or does not
-        stand, and its search fits again between ``now`` and the search's deadline. Its search
-        only: the deadline keeps a reserve for the confirming settle, and the refills that
-        follow a short search are not needed by one that reaches the count. (Counting them, a
-        first attempt on ``wall-shake`` that ended short had its refills use the time a second
-        one needed, on a loaded machine.)"""
-        return not self.reached(problem) and now + self.search_seconds <= problem.deadline
+        """Whether to search again after this attempt: it is short of its count, does not
+        stand, or (trimmed) its porosity is still off its window; and its search fits again
+        between ``now`` and the search's deadline. Its search only: the deadline keeps a
+        reserve for the confirming settle, and the refills that follow a short search are not
+        needed by one that reaches the count. (Counting them, a first attempt on
+        ``wall-shake`` that ended short had its refills use the time a second one needed, on
+        a loaded machine.)"""
+        return not self.on_target(problem) and now + self.search_seconds <= problem.deadline
 
     def on_target(self, problem: Problem) -> bool:
         """Reached, and its porosity within ``TARGET_POINTS`` of the target."""
@@ -780,8 +784,8 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     Within the search's time, less half a settle's reserve; ``keeps`` may
     refuse a move, strictest rule first (:func:`search.trim.trim_moves`; the
     coverage attempt's: meet as many coverage aims as before the trim, and
-    then only cover better than the layout it would replace). The trimmed layout is kept only if its porosity
-    is then within the window and it stands when settled again
+    then only cover better than the layout it would replace). The trimmed layout, nearer
+    the window if not within it, is kept only if it stands when settled again
     (:func:`_settled_again`). Returns the attempt to keep and the ``trim``
     phase (None where nothing was tried).
     """
@@ -797,7 +801,7 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     phase = {"strategy": "trim", "attempt": number, "seconds": 0.0, "blocks": len(trimmed), **stats.to_dict(),
              "stood": None}
     kept = attempt
-    if stats.moved and over(problem, trimmed) <= 0:
+    if stats.moved:  # nearer the window if not within it: kept if it stands
         kept = _settled_again(problem, attempt, trimmed, rng, end, phase, coverage=None)
     phase["seconds"] = clock() - t0
     return kept, phase

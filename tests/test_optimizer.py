@@ -530,9 +530,9 @@ def test_a_run_short_of_its_count_tries_again_and_keeps_the_best(tiny):
 
 
 def test_another_attempt_needs_only_the_last_ones_search_time(tiny):
-    """An attempt short of its count is followed by another where its search, not its settles
-    and refills, fits again before the deadline; one that reaches the count, or whose search
-    would not fit, is the last."""
+    """An attempt short of its count (or off its porosity window) is followed by another where
+    its search, not its settles and refills, fits again before the deadline; one that reaches
+    the count within its window, or whose search would not fit, is the last."""
     from optimizer.api import _Attempt
     from optimizer.search.build import Build
 
@@ -542,7 +542,10 @@ def test_another_attempt_needs_only_the_last_ones_search_time(tiny):
     assert short.another(at, now=50.0)  # 50 + 20 <= 80, though 50 + 50 is not
     assert not short.another(at, now=61.0)  # 61 + 20 > 80
     assert replace(short, stable=False).another(at, now=50.0)  # a layout that falls: again too
-    assert not short.another(replace(at, required=0), now=0.0)  # the count reached: the last
+    # The count reached (none required; the empty build's porosity is 100 %): the last only
+    # within its porosity window.
+    assert short.another(replace(at, required=0), now=0.0)
+    assert not short.another(replace(at, required=0, target=100.0), now=0.0)
 
 
 def test_optimize_result_is_valid_on_tiny(tiny):

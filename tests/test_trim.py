@@ -95,6 +95,20 @@ def test_a_trimmed_layout_is_written_only_once_it_stands(rough):
     assert attempt.build is build  # the attempt keeps its own layout
 
 
+def test_a_trim_that_ends_short_of_the_window_is_kept_if_it_stands(rough, monkeypatch):
+    """Cut short (one move here, of the two the window needs), the trimmed layout is still
+    nearer the target than the attempt: it replaces the attempt once it stands, and another
+    attempt may then bring the porosity into the window."""
+    scene, build = rough
+    monkeypatch.setattr(trim, "MOVES", 1)
+    p = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.trim_repair(p, attempt, np.random.default_rng(1), 1, p.deadline + 30.0)
+    assert phase["moved"] == 1 and phase["stood"] is True and kept is not attempt
+    assert trim.over(p, kept.build) > 0 and kept.build.porosity.percent < build.porosity.percent
+    assert kept.key(p) > attempt.key(p) and not kept.on_target(p)
+
+
 def test_what_came_of_the_trim_in_words():
     """The coverage attempt's note says why an attempt over its window was or was not kept."""
     phase = {"moved": 3, "porosity_before_percent": 57.391, "porosity_percent": 56.952, "stood": True}
