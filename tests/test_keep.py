@@ -134,6 +134,22 @@ def test_keep_input_errors(tmp_path, partial):
     assert partial.read_bytes() == before
 
 
+def test_the_api_refuses_a_kept_layout_it_cannot_complete_in_time(mini):
+    """``optimize(keep=...)``, as a library caller or a service calls it, refuses what the CLI
+    refuses, before its clock runs: crowded copies, more blocks than the zone holds, repeats."""
+    from geometry.errors import InputError
+
+    block = read_layout(REFERENCE).blocks[0]
+    copies = [Placement(i, block.type, block.pose) for i in range(200)]  # fewer than the zone holds
+    far = [Placement(i, block.type, Pose([50.0 * (i % 100), 50.0 * (i // 100), 1.0], [1, 0, 0, 0]))
+           for i in range(500)]
+    cases = {"one inside another": copies, "at most": far,
+             "repeats block ids": [block, block], "one block type a scene": [Placement(0, "tetrapod", block.pose)]}
+    for words, keep in cases.items():
+        with pytest.raises(InputError, match=f"^the kept layout: .*{words}"):
+            optimize(mini, seed=1, keep=keep, time_limit=5.0)
+
+
 def test_kept_layout_laid_from_the_pattern_is_continued_along_it(mini, partial):
     """The origin that lays the pattern through the kept blocks is found, and the sites they
     stand on are not offered again."""

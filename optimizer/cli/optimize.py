@@ -73,13 +73,10 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     how to read it.
     """
     started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
-    import numpy as np
-
     from geometry.blocks import cut_by
-    from geometry.checks import check_not_crowded
     from geometry.layout import MAX_ID, write_layout
     from geometry.scene import load_scene
-    from optimizer.api import MIN_DEFAULT_LIMIT, optimize
+    from optimizer.api import MIN_DEFAULT_LIMIT, check_keep, optimize
     from optimizer.batch import load_save
     from optimizer.score import check_same_scene
 
@@ -102,17 +99,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
             # New blocks are numbered on from the largest kept id, and must read back too.
             raise InputError(f"{keep_path}: kept ids up to {last} leave no room to "
                              f"number {scene.required_blocks} more blocks within 2**53")
-        other = next((p for p in keep if p.type != scene.block_type), None)
-        if other is not None:  # the file is named here, where it is known
-            raise InputError(f"{keep_path}: kept block {other.id} is a {other.type!r}; the scene places "
-                             f"{scene.block_type!r} (one block type a scene)")
-        room = int(scene.tolerance.volume / scene.block.volume)  # blocks the zone holds at most
-        if len(keep) > room:
-            # The kept blocks are settled and checked within the limit: 5000 of them took 28 s of 10.
-            raise InputError(f"{keep_path}: {len(keep)} kept blocks, and at most {room} fit in the scene's "
-                             f"tolerance zone ({scene.tolerance.volume:.1f} m³) without overlapping")
-        check_not_crowded(scene.block, np.array([p.pose.position for p in keep]).reshape(-1, 3),
-                          [p.id for p in keep], keep_path)
+        check_keep(scene, keep, keep_path)  # here, where the file is known and nothing is written
     names = strategy_names + (",cpsat" if bound and "cpsat" not in strategy_names.split(",") else "")
     strategies = _strategies(names)
     with _Progress(scene.required_blocks, scene.target_porosity) as progress:
