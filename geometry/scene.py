@@ -419,8 +419,18 @@ def _num(table: dict[str, Any], key: str, source: str, default: float | None = N
     return float(v)
 
 
+#: A scene's text values (name, kind, block) are at most this long.
+MAX_TEXT = 1000
+
+
 def _str(table: dict[str, Any], key: str, source: str, default: str) -> str:
+    """A text value: a string of at most ``MAX_TEXT`` printable characters. (A NUL in a name
+    went through to every JSON answer and report; a path with one cannot be opened.)"""
     v = table.get(key, default)
     if not isinstance(v, str):
         raise InputError(f"{source}: {key} must be a string")
+    if len(v) > MAX_TEXT:
+        raise InputError(f"{source}: {key} is {len(v)} characters long; at most {MAX_TEXT}")
+    if any(ord(c) < 32 or 127 <= ord(c) < 160 for c in v):
+        raise InputError(f"{source}: {key} {v[:60]!r} holds a control character (a line break, a tab, a NUL)")
     return v
