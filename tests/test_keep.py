@@ -143,8 +143,8 @@ def test_the_api_refuses_a_kept_layout_it_cannot_complete_in_time(mini):
     copies = [Placement(i, block.type, block.pose) for i in range(200)]  # fewer than the zone holds
     far = [Placement(i, block.type, Pose([50.0 * (i % 100), 50.0 * (i // 100), 1.0], [1, 0, 0, 0]))
            for i in range(500)]
-    cases = {"one inside another": copies, "at most": far,
-             "repeats block ids": [block, block], "one block type a scene": [Placement(0, "tetrapod", block.pose)]}
+    cases = {"one inside another": copies, "at most": far, "repeats block ids": [block, block],
+             "one block type a scene": [Placement(0, "tetrapod", block.pose)]}
     for words, keep in cases.items():
         with pytest.raises(InputError, match=f"^the kept layout: .*{words}"):
             optimize(mini, seed=1, keep=keep, time_limit=5.0)

@@ -95,8 +95,10 @@ def test_rough_foundation_is_seeded_and_bounded(tmp_path):
         (MINI_TOML.replace("[3.0, 4.0]", "[1e-300, 1]"), "run from 1/1000 to 1000 times the rise"),
         (MINI_TOML.replace("[3.0, 4.0]", "[1e300, 1e300]"), "two positive numbers below 1e6"),
         # A NUL in a name went through to every JSON answer; a 10 MB name into every report.
-        (MINI_TOML.replace('"t"', '"mi\\u0000ni"', 1), "bad.toml: name 'mi\\\\x00ni' holds a control character"),
-        (MINI_TOML.replace('"t"', '"' + "x" * 2000 + '"', 1), "bad.toml: name is 2000 characters long; at most 1000"),
+        (MINI_TOML.replace('"t"', '"mi\\u0000ni"', 1),
+         "bad.toml: name 'mi\\\\x00ni' holds a control character"),
+        (MINI_TOML.replace('"t"', '"' + "x" * 2000 + '"', 1),
+         "bad.toml: name is 2000 characters long; at most 1000"),
     ],
 )
 def test_bad_scene_files_are_input_errors(text, message):
@@ -106,7 +108,8 @@ def test_bad_scene_files_are_input_errors(text, message):
 
 def test_a_name_in_any_script_is_kept():
     """Only control characters are refused: a name in Japanese, with spaces, stays as written."""
-    assert parse_scene(MINI_TOML.replace('"t"', '"消波 ブロック 2"', 1), "ok.toml", None).name == "消波 ブロック 2"
+    name = "消波 ブロック 2"
+    assert parse_scene(MINI_TOML.replace('"t"', f'"{name}"', 1), "ok.toml", None).name == name
 
 
 def test_missing_scene_is_an_input_error():
