@@ -8,8 +8,10 @@ rejected, as are files too large to be a layout.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -34,25 +36,51 @@ def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     except OSError as exc:
         raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from exc
     finally:
-        if tmp.exists():
+        # Not ``tmp.exists()``: that raises too where the name is too long for the system.
+        with contextlib.suppress(OSError):
             tmp.unlink()
 
 
-def _reject_constant(name: str) -> Any:
+def reject_constant(name: str) -> Any:
+    """``json.loads``' ``parse_constant``: NaN and Infinity refused."""
     raise ValueError(f"{name} is not a number JSON allows")
+
+
+#: Most digits of an integer read from JSON: more than any float holds (1e308 has 309).
+MAX_INT_DIGITS = 309
+
+
+def bounded_int(text: str) -> int:
+    """A JSON integer, refused where no float can hold it (``10**400`` would pass every
+    type check as an int and then fail in float arithmetic)."""
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"an integer of {len(text.lstrip('-'))} digits is too large")
+    return int(text)
+
+
+def regular_file(path: Path, what: str = "file") -> os.stat_result:
+    """``path``'s status, if it is a regular file; else :class:`InputError` naming it.
+
+    A device (``/dev/zero``) or a named pipe reports no size, or blocks its
+    reader for ever: neither is read.
+    """
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise InputError(f"{path}: {what} not found") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path}: is a folder, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{path}: not a regular file (a device, pipe or socket)")
+    return st
 
 
 def read_json(path: str | os.PathLike) -> Any:
     """Parse a JSON file strictly; raise :class:`InputError` naming the file."""
     path = Path(path)
-    try:
-        size = path.stat().st_size
-    except FileNotFoundError:
-        raise InputError(f"{path}: file not found") from None
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, not a file")
+    size = regular_file(path).st_size
     if size > MAX_JSON_BYTES:
         raise InputError(f"{path}: file is {size} bytes, more than {MAX_JSON_BYTES}")
     try:
@@ -62,7 +90,7 @@ def read_json(path: str | os.PathLike) -> Any:
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
-        return json.loads(text, parse_constant=_reject_constant)
+        return json.loads(text, parse_constant=reject_constant, parse_int=bounded_int)
     except json.JSONDecodeError as exc:
         where = f"line {exc.lineno} column {exc.colno}"
         raise InputError(f"{path}: malformed JSON at {where}: {exc.msg}") from None

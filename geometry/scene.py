@@ -290,6 +290,8 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{source}: malformed TOML: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{source}: TOML nested too deeply") from None
     _check_keys(data, _TOP_KEYS, source)
     design = _table(data, "design", source, required=True)
     _check_keys(design, _DESIGN_KEYS, f"{source}: [design]")

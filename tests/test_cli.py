@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import zipfile
 from pathlib import Path
 
@@ -247,3 +248,34 @@ def test_optimize_refuses_a_section_scene_naming_its_file(tmp_path):
     r = shoha("optimize", str(section), "--out", str(tmp_path / "out.json"), "--time-limit", "3")
     _assert_bad(r, str(section))
     assert "a section scene is a 2D slice" in r.stderr and not (tmp_path / "out.json").exists()
+
+
+def test_paths_the_system_refuses_exit_2_with_one_line(tmp_path):
+    """A name too long for the file system, a loop of links, a device or a pipe: refused
+    with one line naming it, and nothing written (a device or pipe is never read: /dev/zero
+    reports no size and never ends, a pipe with no writer blocks its reader)."""
+    good = tmp_path / "good.json"
+    good.write_text(_layout_text())
+    long_out = tmp_path / ("a" * 300 + ".stl")
+    _assert_bad(shoha("block", "export", "shake-4t", "--out", str(long_out)), "File name too long")
+    _assert_bad(shoha("scene", "info", str(tmp_path / ("b" * 300 + ".toml"))), "File name too long")
+    (tmp_path / "loop1.json").symlink_to(tmp_path / "loop2.json")
+    (tmp_path / "loop2.json").symlink_to(tmp_path / "loop1.json")
+    _assert_bad(shoha("settle", str(good), "--out", str(tmp_path / "loop1.json")), "loop1.json")
+    _assert_bad(shoha("check", "/dev/zero"), "not a regular file")
+    os.mkfifo(tmp_path / "pipe.json")
+    _assert_bad(shoha("check", str(tmp_path / "pipe.json"), timeout=60), "not a regular file")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.json", "loop1.json", "loop2.json", "pipe.json"]
+
+
+def test_a_deeply_nested_scene_file_exits_2_with_one_line(tmp_path):
+    scene = tmp_path / "deep.toml"
+    scene.write_text('block = "shake-4t"\nfoo = ' + "[" * 2000 + "]" * 2000 + "\n")
+    _assert_bad(shoha("scene", "info", str(scene)), "TOML nested too deeply")
+
+
+def test_a_name_with_a_newline_is_shown_escaped_on_its_one_line(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text(_layout_text().replace('"mini"', '"mi\\nni\\u0000"'))
+    r = shoha("check", str(path))
+    _assert_bad(r, "mi\\nni\\x00: no such scene")

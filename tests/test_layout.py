@@ -121,6 +121,9 @@ BAD = [
     (json.dumps([1, 2, 3]), "JSON object"),
     (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [{}] * 100_001}), "more than 100000"),
     ("[" * 100_000 + "]" * 100_000, "nested too deeply"),
+    # An integer no float holds passes every type check as an int, then overflows in arithmetic.
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(position=[10**400, 1, 1])]}),
+     "401 digits is too large"),
 ]
 
 

@@ -261,6 +261,7 @@ BAD = [
                                b'"z": 0, "w": 1}}', JSON, 400),
     ("Infinity", "PUT", "blocks/5", _body().replace(b"0.9", b"Infinity"), JSON, 400),
     ("a number too large for a float", "PUT", "blocks/5", _body().replace(b"0.9", b"1e400"), JSON, 400),
+    ("an integer too large for a float", "PUT", "blocks/5", _body().replace(b"0.9", b"9" * 400), JSON, 400),
     ("nesting too deep", "PUT", "blocks/5", b"[" * 100_000 + b"]" * 100_000, JSON, 400),
     ("not UTF-8", "PUT", "blocks/5", b'{"type": "\xff"}', JSON, 400),
     ("an empty body", "PUT", "blocks/5", b"", JSON, 400),

@@ -44,6 +44,12 @@ for _command in (block, scene, convert, porosity, check, settle_cmd, optimize_cm
     cli.add_command(_command)
 
 
+def one_line(message: str) -> str:
+    """``message`` as one line of printable text: a newline or other control character in a
+    name the user gave (a file called ``"a\\nb"``) is shown escaped, not cut or sent raw."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (0 done, 2 bad input, 1 bug)."""
     try:
@@ -57,10 +63,20 @@ def main(argv: list[str] | None = None) -> int:
         # Usage errors: one line, as for bad files (click prints three).
         ctx = getattr(exc, "ctx", None)
         where = f"{ctx.command_path}: " if ctx is not None else "shoha: "
-        click.echo(where + exc.format_message().replace("\n", " "), err=True)
+        click.echo(one_line(where + exc.format_message().replace("\n", " ")), err=True)
         return 2
     except InputError as exc:
-        click.echo(f"shoha: {str(exc).splitlines()[0] if str(exc) else 'bad input'}", err=True)
+        click.echo(one_line(f"shoha: {exc or 'bad input'}"), err=True)
+        return 2
+    except OSError as exc:
+        # A path the system itself refuses: a name too long, no permission, a loop of links.
+        where = f"{exc.filename}: " if exc.filename else ""
+        click.echo(one_line(f"shoha: {where}{exc.strerror or exc}"), err=True)
+        return 2
+    except RuntimeError as exc:
+        if not str(exc).startswith("Symlink loop"):  # pathlib's word for ELOOP (Python 3.11)
+            raise
+        click.echo(one_line(f"shoha: {exc}"), err=True)
         return 2
     except KeyboardInterrupt:
         click.echo("shoha: interrupted", err=True)

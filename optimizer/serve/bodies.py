@@ -30,6 +30,7 @@ import numpy as np
 
 from geometry.blocks import Block, get_block
 from geometry.errors import InputError
+from geometry.fileio import bounded_int, reject_constant
 from geometry.layout import FORMAT, MAX_COORDINATE, layout_from_dict, normalised_quaternion
 from geometry.pose import Pose
 from geometry.scene import Scene
@@ -66,10 +67,6 @@ class BodyError(InputError):
         self.status = status
 
 
-def _reject_constant(name: str) -> Any:
-    raise ValueError(f"{name} is not a number JSON allows")
-
-
 def parse_json(raw: bytes) -> Any:
     """The JSON value of a request body; a :class:`BodyError` for anything else.
 
@@ -86,7 +83,8 @@ def parse_json(raw: bytes) -> Any:
     except UnicodeDecodeError:
         raise BodyError(400, "body is not UTF-8 text") from None
     try:
-        value = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
+        value = json.loads(text, parse_constant=reject_constant, parse_float=_finite_float,
+                           parse_int=bounded_int)
     except json.JSONDecodeError as exc:
         raise BodyError(400, f"malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except RecursionError:
