@@ -265,7 +265,8 @@ def test_paths_the_system_refuses_exit_2_with_one_line(tmp_path):
     _assert_bad(shoha("check", "/dev/zero"), "not a regular file")
     os.mkfifo(tmp_path / "pipe.json")
     _assert_bad(shoha("check", str(tmp_path / "pipe.json"), timeout=60), "not a regular file")
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.json", "loop1.json", "loop2.json", "pipe.json"]
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == ["good.json", "loop1.json", "loop2.json", "pipe.json"]
 
 
 def test_a_deeply_nested_scene_file_exits_2_with_one_line(tmp_path):
