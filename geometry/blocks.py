@@ -28,7 +28,7 @@ from __future__ import annotations
 import hashlib
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from dataclasses import dataclass
@@ -311,6 +311,7 @@ def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
         return tetrapod(2.0 if name == "tetrapod" else _parse_floats(name, name[len("tetrapod:"):], 1)[0])
     if name.startswith("box:"):
         a, b, c = _parse_floats(name, name[4:].replace("x", ","), 3)
+        check_aspect((a, b, c), f"block type {name!r}")
         return box_block(a, b, c)
     if name.startswith("mesh:"):
         path = Path(name[5:]).expanduser()
@@ -324,6 +325,19 @@ def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
 
 #: The sizes a block may have, metres: a box's edges, a tetrapod's height, a mesh's extent.
 MIN_SIZE, MAX_SIZE = 0.05, 100.0
+#: How many times its thinnest extent a block may be across. A search steps over a mound in
+#: steps of about a block's thinnest size: a mesh 1 m square and 1e-7 m thick ran a
+#: 5 s ``optimize`` past 60 s and 900 MB, listing pattern sites. The slender 6 x 0.3 x 0.3 m
+#: beams of ``benchmarks/time_limits.py`` are 20.
+MAX_ASPECT = 50.0
+
+
+def check_aspect(extents: Sequence[float], what: str) -> None:
+    """Refuse a block thinner than ``MIN_SIZE`` or more than ``MAX_ASPECT`` times as wide as thin."""
+    thin, wide = float(min(extents)), float(max(extents))
+    if thin < MIN_SIZE or wide > MAX_ASPECT * thin:
+        raise InputError(f"{what}: the block is {wide:g} m across and {thin:g} m thin; a block is at "
+                         f"least {MIN_SIZE:g} m thin and at most {MAX_ASPECT:g} times as wide as thin")
 
 
 def _parse_floats(name: str, text: str, n: int) -> list[float]:
@@ -510,6 +524,7 @@ def mesh_block(path: str, name: str | None = None) -> Block:
             mesh.invert()
         else:
             raise InputError(f"{path}: mesh encloses no volume")
+    check_aspect(mesh.bounding_box_oriented.primitive.extents, str(path))
     centroid = np.asarray(mesh.center_mass)
     if not rest_poses(mesh.vertices - centroid):
         # Placement hangs a block as it rests on flat ground; a rounded solid has no such

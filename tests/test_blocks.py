@@ -241,6 +241,23 @@ def test_a_block_with_no_stable_face_is_an_input_error(tmp_path):
         mesh_block(str(path))
 
 
+@pytest.mark.parametrize("extents, thin", [([1.0, 1.0, 1e-7], "1e-07 m thin"),
+                                           ([99.0, 1.0, 1.0], "1 m thin")])
+def test_a_sliver_or_a_needle_is_an_input_error(tmp_path, extents, thin):
+    """A mesh 1 m square and 1e-7 m thick was read (volume 0.0000 m3), and ``optimize`` on it
+    ran past its 5 s limit by a minute, listing pattern sites a sliver's width apart. Turned
+    off the axes, so the thinness is found in the block's own directions."""
+    mesh = trimesh.creation.box(extents)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(0.7, [1.0, 2.0, 3.0]))
+    path = tmp_path / "sliver.stl"
+    mesh.export(path)
+    with pytest.raises(InputError, match=thin):
+        mesh_block(str(path))
+    with pytest.raises(InputError, match="at most 50 times as wide as thin"):
+        get_block("box:100x100x0.05")
+    assert get_block("box:6x0.3x0.3").height == pytest.approx(0.3)  # 20 times: a slender beam
+
+
 def test_a_mesh_file_whose_text_is_not_utf8_loads(tmp_path):
     """A maker's OBJ with a Latin-1 comment is a good mesh: trimesh decodes its text with
     charset-normalizer (a dependency for that)."""
