@@ -113,9 +113,19 @@ def check_not_crowded(block: Block, positions: np.ndarray, ids: Sequence[int], w
     1000 blocks in a 12 m cube), which no crane lays; its pairwise checks grow with the
     square of the count (100 copies of one pose took 25 s in ``shoha serve``).
     """
-    if len(positions) <= most_within_reach(block):
+    most = most_within_reach(block)
+    if len(positions) <= most:
         return
-    counts = cKDTree(positions).query_ball_point(positions, 2.0 * block.bounding_radius, return_length=True)
+    reach = 2.0 * block.bounding_radius
+    # First by cells whose diagonal is the reach: blocks sharing a cell reach each other, so
+    # a cell of more is crowded at once (100 000 copies of one pose would have the tree count
+    # 10^10 neighbours), and otherwise no block has more than a few cells' worth in reach.
+    _, cell, per_cell = np.unique(np.floor(positions / (reach / math.sqrt(3.0))), axis=0,
+                                  return_inverse=True, return_counts=True)
+    if per_cell.max() - 1 > most:
+        first = int(np.argmax(cell.ravel() == int(np.argmax(per_cell))))
+        raise InputError(f"{where}: {crowding(block, ids[first], int(per_cell.max()) - 1)}")
+    counts = cKDTree(positions).query_ball_point(positions, reach, return_length=True)
     worst = int(np.argmax(counts))
     if (wrong := crowding(block, ids[worst], int(counts[worst]) - 1)) is not None:
         raise InputError(f"{where}: {wrong}")

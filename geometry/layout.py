@@ -182,7 +182,22 @@ def layout_from_dict(data: Any, source: str, base_dir: str | None) -> Layout:
         placements.append(p)
     if "elapsed_s" in extra:
         check_elapsed(extra["elapsed_s"], placements, source)
+    refuse_crowded(placements, base_dir, source)
     return Layout(scene, placements, extra, base_dir)
+
+
+def refuse_crowded(placements: list[Placement], base_dir: str | None, source: str) -> None:
+    """Raise InputError for blocks one inside another by the dozen (``checks.check_not_crowded``,
+    for each block type): every check of such a file grows with the square of its count
+    (300 copies of one pose took ``shoha check`` 13 s, and 100 000 ran it out of memory)."""
+    from .checks import check_not_crowded  # the checks pull in FCL and manifold3d
+
+    by_type: dict[str, list[Placement]] = {}
+    for p in placements:
+        by_type.setdefault(p.type, []).append(p)
+    for kind, group in by_type.items():
+        positions = np.array([p.pose.position for p in group]).reshape(-1, 3)
+        check_not_crowded(get_block(kind, base_dir), positions, [p.id for p in group], source)
 
 
 def check_seconds(value: Any, what: str, where: str) -> float:

@@ -24,7 +24,15 @@ from .blocks import get_block
 from .constants import MAX_BLOCKS
 from .errors import InputError
 from .fileio import read_json
-from .layout import Layout, Placement, check_elapsed, check_position, check_seconds, normalised_quaternion
+from .layout import (
+    Layout,
+    Placement,
+    check_elapsed,
+    check_position,
+    check_seconds,
+    normalised_quaternion,
+    refuse_crowded,
+)
 from .pose import Pose
 
 #: The permutation matrix that swaps y and z.
@@ -97,6 +105,7 @@ def read_unity_save(
     if "elapsed_s" in data:
         check_elapsed(data["elapsed_s"], placements, source)
         extra["elapsed_s"] = data["elapsed_s"]
+    refuse_crowded(placements, base_dir, source)
     return Layout(scene, placements, extra, base_dir)
 
 

@@ -174,3 +174,27 @@ def test_a_mesh_layout_written_to_another_folder_still_finds_its_mesh(tmp_path, 
 
     assert written("here/again.json") == "mesh:meshes/b.stl"
     assert written("there/l.json") == "mesh:../here/meshes/b.stl"
+
+
+@pytest.mark.parametrize("spread", [0.0, 2.0])
+def test_a_layout_of_blocks_one_inside_another_is_refused_on_reading(tmp_path, spread):
+    """300 copies of one pose (every check grew with the square of the count: ``shoha check``
+    took 13 s, and 100 000 copies ran it out of memory), or 300 blocks in a cube twice the
+    reach across (about 150 within reach of each, where 84 Shake Blocks fit)."""
+    from geometry.blocks import get_block
+
+    reach = 2.0 * get_block("shake-4t").bounding_radius
+    rng = np.random.default_rng(0)
+    centre = np.array([0.0, 6.0, 3.0])
+    blocks = [_block(id=i, position=list(centre + spread * reach * (rng.random(3) - 0.5)))
+              for i in range(300)]
+    path = tmp_path / "heap.json"
+    path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": blocks}))
+    said = r"heap.json: block \d+ has \d+ blocks within reach, more than the 84"
+    with pytest.raises(InputError, match=said):
+        read_layout(path)
+    # The same blocks spread along the mound are a layout (with collisions, for check to report).
+    for i, b in enumerate(blocks):
+        b["position"] = [0.0, 0.5 * i, 3.0]
+    path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": blocks}))
+    assert len(read_layout(path).blocks) == 300

@@ -102,3 +102,11 @@ def test_bad_saves(tmp_path, save, message):
     path.write_text(json.dumps(save))
     with pytest.raises(InputError, match=message):
         read_unity_save(path)
+
+
+def test_a_save_of_blocks_one_inside_another_is_refused(tmp_path):
+    block = {"position": {"x": 0.0, "y": 3.0, "z": 6.0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}
+    path = tmp_path / "heap.json"
+    path.write_text(json.dumps({"blocks": [block] * 100}))
+    with pytest.raises(InputError, match="heap.json: block 0 has 99 blocks within reach"):
+        read_unity_save(path)
