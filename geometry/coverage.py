@@ -375,10 +375,15 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
 
     dist = np.full(len(pts), np.inf)
     if placed and len(pts):
+        # A block is sampled no finer than its own H / CELLS_PER_H: a layout of Shake Blocks
+        # checked against a scene of 5 cm tetrapods put 47 000 samples on each (30 s, 670 MB).
+        # The bound below then holds to the coarsest spacing, and the exact distances decide.
+        spacing = {id(block): max(step, block.height / CELLS_PER_H) for _, block, _ in placed}
+        step = max(spacing.values())
         clouds = []
         for _, block, pose in placed:
             check()
-            clouds.append(pose.apply(block_samples(block, step)))
+            clouds.append(pose.apply(block_samples(block, spacing[id(block)])))
         owner = np.repeat(np.arange(len(placed)), [len(c) for c in clouds])
         tree = cKDTree(np.concatenate(clouds))
         upper, nearest = np.empty(len(pts)), np.empty(len(pts), int)

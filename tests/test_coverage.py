@@ -136,6 +136,29 @@ def test_tiny_blocks_on_a_big_mound_are_measured_with_a_bounded_sample():
     assert samples.area.sum() == pytest.approx(surface_samples(tiny, 0.5).area.sum())
 
 
+def test_blocks_far_larger_than_the_scenes_are_sampled_by_their_own_size(boxes, monkeypatch):
+    """Cubes of 1 m checked against a scene of 5 cm tetrapods (bare beyond 2.5 cm): each cube
+    is sampled at its own H / 16, not the scene's (a layout of Shake Blocks so took 30 s and
+    670 MB), and the exact distances still decide every sample: the same bare samples and
+    largest distance as measured exactly everywhere."""
+    import geometry.coverage as cov
+
+    text = BOX_TOML.replace('block = "box:1x1x1"', 'block = "tetrapod:0.05"\nrequired_blocks = 10')
+    tiny = parse_scene(text, "tiny.toml", None)
+    cube = boxes.block
+    placed = [(i, cube, Pose([x, 1.7 + 0.3 * i, 0.5], [1, 0, 0, 0])) for i, x in enumerate((-1.5, -0.2, 1.1))]
+    asked = []
+    real = cov.block_samples
+    monkeypatch.setattr(cov, "block_samples",
+                        lambda block, spacing: asked.append(spacing) or real(block, spacing))
+    c = coverage(tiny, placed)
+    assert min(asked) == pytest.approx(cube.height / 16)
+    pts = c.samples.points
+    exact = cov._distances(pts, placed, c.spacing_m, c.bare_distance_m, exact=True)
+    np.testing.assert_array_equal(c.bare, exact > c.bare_distance_m)
+    assert c.max_bare_m == pytest.approx(exact.max(), abs=1e-12)
+
+
 def test_mirror_images_have_the_same_coverage(boxes):
     """A block and its mirror image across the axis: the section is symmetric, so is the measure."""
     cube = boxes.block
