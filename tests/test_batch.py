@@ -208,6 +208,8 @@ def test_batch_input_errors(tmp_path, saves):
           str(tmp_path / "o.csv")], "no-such-scene"),
         (["batch", "optimize", "mini", "--seeds", "5-2", "--layouts", str(tmp_path / "l"), "--out",
           str(tmp_path / "o.csv")], "seeds"),
+        (["batch", "optimize", "mini", "--time-limit", "nan", "--layouts", str(tmp_path / "l"), "--out",
+          str(tmp_path / "o.csv")], "--time-limit nan"),
     ]
     for args, word in cases:
         r = shoha(*args, timeout=120)

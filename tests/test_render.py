@@ -78,6 +78,8 @@ def test_render_pdf(tmp_path):
         (["--out", "{tmp}/none/x.png"], "does not exist"),
         (["--out", "{tmp}/x.png", "--scene", "nope"], "nope"),
         (["--out", "{tmp}/x.png", "--section-y", "nan"], "section-y"),
+        (["--out", "{tmp}/x.png", "--section-y", "-5"], "must lie along the mound"),
+        (["--out", "{tmp}/x.png", "--section-y", "1e300"], "must lie along the mound"),
     ],
 )
 def test_render_bad_input(tmp_path, args, word):

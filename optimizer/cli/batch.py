@@ -9,7 +9,7 @@ import click
 
 from geometry.errors import InputError
 
-from .common import Group, check_out, emit, parse_origin, save_options
+from .common import Group, check_out, check_time_limit, emit, parse_origin, save_options
 
 
 class _Bar:
@@ -107,7 +107,7 @@ def batch_score(saves: tuple[str, ...], reference: str, source: str, block_type:
 @batch.command("optimize")
 @click.argument("scenes", nargs=-1, required=True)
 @click.option("--seeds", default="0", show_default=True, help="Seeds: 0-9, 1,4,7 or 0-3,10.")
-@click.option("--time-limit", type=click.FloatRange(min=0.0, min_open=True), default=None,
+@click.option("--time-limit", type=float, default=None,
               help="Wall-clock seconds per run; default as shoha optimize's, by each scene's count.")
 @click.option("--layouts", required=True, help="Folder for the layouts, SCENE-seedN.json.")
 @_runner_options
@@ -117,6 +117,7 @@ def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None
     from geometry.scene import load_scene
     from optimizer.batch import OPTIMIZE_COLUMNS, Item, RowFile, optimize_task, parse_seeds, run_batch
 
+    check_time_limit(time_limit)
     rows = RowFile(check_out(out, (".csv", ".jsonl")), OPTIMIZE_COLUMNS)
     folder = Path(layouts)
     if folder.exists() and not folder.is_dir():

@@ -74,3 +74,9 @@ def save_options(f: Any) -> Any:
                      help="Format of the save: shoha-layout/1, the simulator's Unity JSON, "
                           "or auto (told apart by content).")(f)
     return f
+
+
+def check_time_limit(value: float | None) -> None:
+    """``--time-limit``: a positive, finite number of seconds (``nan`` passes a range check)."""
+    if value is not None and (not math.isfinite(value) or value <= 0):
+        raise InputError(f"--time-limit {value}: must be a positive number of seconds")

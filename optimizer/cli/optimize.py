@@ -5,7 +5,6 @@ The only place where strategy names map to strategy classes.
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
@@ -13,7 +12,7 @@ import click
 
 from geometry.errors import InputError
 
-from .common import check_out, emit, json_option, parse_origin, save_options
+from .common import check_out, check_time_limit, emit, json_option, parse_origin, save_options
 
 #: The share of the time limit (or of the least default limit) that a mesh block's first cut
 #: into convex pieces may take; the rest is left to place blocks with it.
@@ -80,8 +79,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     from optimizer.batch import load_save
     from optimizer.score import check_same_scene
 
-    if time_limit is not None and (not math.isfinite(time_limit) or time_limit <= 0):
-        raise InputError(f"--time-limit {time_limit}: must be a positive number of seconds")
+    check_time_limit(time_limit)
     path = check_out(out)
     # A mesh block's first cut into convex pieces may take at most this share of the limit.
     with cut_by(started + CUT_SHARE * (time_limit or MIN_DEFAULT_LIMIT)):

@@ -35,6 +35,10 @@ def render_cmd(layout_path: str, out: str, scene_name: str | None, section_y: fl
         raise InputError(f"--section-y {section_y}: must be a finite number of metres")
     layout = read_layout(layout_path)
     scene = layout.load_scene(scene_name)
+    design = scene.design
+    if section_y is not None and not design.y_start <= section_y <= design.y_end:
+        raise InputError(f"--section-y {section_y:g}: the cross-section must lie along the mound, "
+                         f"from {design.y_start:g} to {design.y_end:g} m")
     placed = layout.placed()
     report = check_layout(scene, placed)
     unstable: list[int] = []
