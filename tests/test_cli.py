@@ -280,3 +280,19 @@ def test_a_name_with_a_newline_is_shown_escaped_on_its_one_line(tmp_path):
     path.write_text(_layout_text().replace('"mini"', '"mi\\nni\\u0000"'))
     r = shoha("check", str(path))
     _assert_bad(r, "mi\\nni\\x00: no such scene")
+
+
+def test_a_relative_mesh_block_on_the_command_line_is_the_working_folders(tmp_path):
+    """``--block mesh:meshes/b.stl`` names a file in the working folder (docs/contract.md); it
+    was looked for beside the save, in ``saves/meshes/b.stl``."""
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "saves").mkdir()
+    trimesh.creation.box([1.2, 1.0, 0.8]).export(tmp_path / "meshes" / "b.stl")
+    (tmp_path / "saves" / "s.json").write_text(json.dumps({"blocks": [
+        {"position": {"x": 0.0, "y": 0.4, "z": 3.0}, "rotation": {"x": 0, "y": 0, "z": 0, "w": 1}}]}))
+    r = shoha("convert", "saves/s.json", "--from", "unity", "--out", "out.json",
+              "--block", "mesh:meshes/b.stl", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = shoha("check", str(tmp_path / "out.json"), "--json")
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["blocks"] == 1

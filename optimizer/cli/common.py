@@ -64,11 +64,20 @@ class Group(click.Group):
 SAVE_FORMATS = click.Choice(["auto", "layout", "unity"])
 
 
+def block_from_cwd(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    """``--block``'s callback: a relative ``mesh:PATH`` on the command line is the working
+    folder's (docs/contract.md), made absolute here; a save's own block types are resolved
+    from the save's folder, and ``--block`` was too."""
+    if value.startswith("mesh:") and not Path(value[5:]).expanduser().is_absolute():
+        return "mesh:" + str(Path.cwd() / Path(value[5:]).expanduser())
+    return value
+
+
 def save_options(f: Any) -> Any:
     """The options that say how to read a save (as in ``shoha convert``)."""
     f = click.option("--origin", default="0,0,0", show_default=True,
                      help="Unity saves: world position X,Y,Z (m) of Unity's origin.")(f)
-    f = click.option("--block", "block_type", default="shake-4t", show_default=True,
+    f = click.option("--block", "block_type", default="shake-4t", show_default=True, callback=block_from_cwd,
                      help="Unity saves: block type of saved blocks that name none.")(f)
     f = click.option("--from", "source", type=SAVE_FORMATS, default="auto", show_default=True,
                      help="Format of the save: shoha-layout/1, the simulator's Unity JSON, "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from .common import check_out, emit, json_option, parse_origin
+from .common import block_from_cwd, check_out, emit, json_option, parse_origin
 
 
 @click.command("convert")
@@ -12,7 +12,7 @@ from .common import check_out, emit, json_option, parse_origin
 @click.option("--from", "source", type=click.Choice(["unity"]), required=True,
               help="Format of SAVE: the training simulator's Unity JSON.")
 @click.option("--out", required=True, help="Layout file to write (shoha-layout/1).")
-@click.option("--block", "block_type", default="shake-4t", show_default=True,
+@click.option("--block", "block_type", default="shake-4t", show_default=True, callback=block_from_cwd,
               help="Block type for saved blocks that name none.")
 @click.option("--scene", "scene_name", default="mini", show_default=True,
               help="Scene the layout belongs to.")
