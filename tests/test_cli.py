@@ -296,3 +296,17 @@ def test_a_relative_mesh_block_on_the_command_line_is_the_working_folders(tmp_pa
     r = shoha("check", str(tmp_path / "out.json"), "--json")
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["blocks"] == 1
+
+
+def test_scene_export_writes_all_its_files_or_none(tmp_path):
+    """A ``tolerance.stl`` that is a folder was found only after ``design.stl`` was written
+    over; a missing folder above ``--out`` was made, and ``--out ''`` wrote into the working folder."""
+    out = tmp_path / "out"
+    (out / "tolerance.stl").mkdir(parents=True)
+    (out / "design.stl").write_text("mine")
+    _assert_bad(shoha("scene", "export", "mini", "--out", str(out)), "tolerance.stl: is a folder")
+    assert (out / "design.stl").read_text() == "mine" and sorted(p.name for p in out.iterdir()) == [
+        "design.stl", "tolerance.stl"]
+    _assert_bad(shoha("scene", "export", "mini", "--out", str(tmp_path / "a" / "b")), "does not exist")
+    _assert_bad(shoha("scene", "export", "mini", "--out", "", cwd=tmp_path), "name a folder")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]

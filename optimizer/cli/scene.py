@@ -88,19 +88,29 @@ def scene_export(scene_name: str, out: str, as_json: bool) -> None:
     from geometry.scene import load_scene
 
     s = load_scene(scene_name)
+    if not out.strip():
+        raise InputError("--out: name a folder for the meshes")
     folder = Path(out)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{out}: is a file, not a folder")
+    # The folder may be new, as other verbs' files are, but not the folders above it.
+    if not folder.expanduser().absolute().parent.is_dir():
+        raise InputError(f"{out}: folder {folder.parent} does not exist")
     meshes = {label: (prism.polytope.vertices, prism.polytope.faces)
               for label, prism in (("design", s.design), ("tolerance", s.tolerance))}
     meshes["foundation"] = s.foundation.slab()
     if s.wall_box is not None:
         wall = trimesh.creation.box(bounds=s.wall_box)
         meshes["wall"] = (wall.vertices, wall.faces)
-    folder.mkdir(parents=True, exist_ok=True)
+    # Every file checked and made before the first is written: none is left half done.
+    files = {folder / f"{label}.stl": trimesh.Trimesh(v, f, process=True).export(file_type="stl")
+             for label, (v, f) in meshes.items()}
+    for path in files:
+        if path.is_dir():
+            raise InputError(f"{path}: is a folder, not a file")
+    folder.mkdir(exist_ok=True)
     paths = []
-    for label, (vertices, faces) in meshes.items():
-        path = folder / f"{label}.stl"
-        atomic_write(path, trimesh.Trimesh(vertices, faces, process=True).export(file_type="stl"))
+    for path, data in files.items():
+        atomic_write(path, data)
         paths.append(str(path))
     emit({"paths": paths}, as_json, "wrote " + ", ".join(paths))
