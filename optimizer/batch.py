@@ -28,6 +28,7 @@ import io
 import json
 import math
 import os
+import re
 import time
 import uuid
 from collections.abc import Callable, Iterable, Sequence
@@ -571,6 +572,10 @@ def _run_pool(todo: Sequence[Item], task: Callable[..., dict[str, Any]], workers
 
 def _connect(scheduler: str) -> Any:
     """A Dask client of the scheduler at ``scheduler``."""
+    # An address that is none (``garbage``) is refused before a client is made: Dask's own
+    # refusal came with a traceback from the half-made client, 20 s later, at exit.
+    if not re.fullmatch(r"(?:[a-z]+://)?[^\s/:]+:\d{1,5}", scheduler):
+        raise InputError(f"--scheduler {scheduler}: not a scheduler address (tcp://HOST:PORT)")
     try:
         from distributed import Client
     except ImportError:

@@ -204,6 +204,7 @@ def test_batch_input_errors(tmp_path, saves):
         (["batch", "score", str(saves), "--reference", str(tmp_path / "none.json"),
           "--out", str(tmp_path / "o.csv")], "none.json"),
         ([*base, "--out", str(tmp_path / "o.csv"), "--scheduler", "tcp://127.0.0.1:9"], "cannot connect"),
+        ([*base, "--out", str(tmp_path / "o.csv"), "--scheduler", "garbage"], "not a scheduler address"),
         (["batch", "optimize", "no-such-scene", "--layouts", str(tmp_path / "l"), "--out",
           str(tmp_path / "o.csv")], "no-such-scene"),
         (["batch", "optimize", "mini", "--seeds", "5-2", "--layouts", str(tmp_path / "l"), "--out",
