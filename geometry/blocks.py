@@ -340,9 +340,15 @@ def check_aspect(extents: Sequence[float], what: str) -> None:
                          f"least {MIN_SIZE:g} m thin and at most {MAX_ASPECT:g} times as wide as thin")
 
 
+def plain_number(text: str) -> bool:
+    """Whether ``text`` is written as a number is in a file: ASCII, with no ``_`` (Python's
+    ``float`` and ``int`` read ``1_0`` as 10 and Arabic-Indic ``٣`` as 3)."""
+    return text.isascii() and "_" not in text
+
+
 def _parse_floats(name: str, text: str, n: int) -> list[float]:
     try:
-        values = [float(v) for v in text.split(",")]
+        values = [float(v) for v in text.split(",")] if plain_number(text) else []
     except ValueError:
         values = []
     if len(values) != n or not all(np.isfinite(v) and MIN_SIZE <= v <= MAX_SIZE for v in values):

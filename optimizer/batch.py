@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from geometry.blocks import plain_number
 from geometry.errors import InputError
 
 #: Times an item is run before a worker crash is recorded as its error.
@@ -318,6 +319,8 @@ def expand_saves(patterns: Sequence[str], exclude: Iterable[str | os.PathLike] =
 
 #: Seeds one batch may name at most.
 MAX_SEEDS = 100_000
+#: The largest seed, as ``shoha optimize --seed`` takes.
+MAX_SEED = 2**31 - 1
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -327,6 +330,8 @@ def parse_seeds(text: str) -> list[int]:
     for part in text.split(","):
         part = part.strip()
         try:
+            if not plain_number(part):
+                raise ValueError
             if "-" in part[1:]:
                 lo, hi = part.split("-", 1) if not part.startswith("-") else ("", part)
                 a, b = int(lo), int(hi)
@@ -338,6 +343,8 @@ def parse_seeds(text: str) -> list[int]:
             raise InputError(f"--seeds {text!r}: expected seeds like 0-9 or 1,4,7") from None
         if a < 0 or len(seeds) + b - a + 1 > MAX_SEEDS:  # counted before a range is made
             raise too_many
+        if b > MAX_SEED:
+            raise InputError(f"--seeds {text!r}: a seed is at most {MAX_SEED}, as for shoha optimize --seed")
         seeds.extend(range(a, b + 1))
     return list(dict.fromkeys(seeds))
 

@@ -266,8 +266,9 @@ def test_parse_seeds(text, seeds):
 
 
 # 0-99999999999 made its whole list first: a MemoryError, exit 1.
+# 1_0 and an Arabic-Indic 3 were read as 10 and 3; 99999999999999999999 ran, where optimize --seed stops.
 @pytest.mark.parametrize("text", ["", "a", "3-1", "-1", "1-2-3", "0-100000", "0-99999999999",
-                                  "0-99999,100001"])
+                                  "0-99999,100001", "1_0", "\u0663", "99999999999999999999"])
 def test_parse_seeds_rejects(text):
     with pytest.raises(InputError):
         parse_seeds(text)

@@ -84,7 +84,7 @@ def test_box_block_measures():
 
 
 @pytest.mark.parametrize("name", ["cube", "shake", "tetrapod:0", "tetrapod:abc", "box:1x1", "box:1x1x-1",
-                                  "mesh:", "tetrapod:nan"])
+                                  "mesh:", "tetrapod:nan", "box:1_0x1x1", "tetrapod:\u0663"])
 def test_unknown_or_bad_block_names_are_input_errors(name):
     with pytest.raises(InputError):
         get_block(name)

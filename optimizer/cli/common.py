@@ -36,8 +36,10 @@ def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
 
 def parse_origin(text: str) -> tuple[float, float, float]:
     """``--origin X,Y,Z``, metres."""
+    from geometry.blocks import plain_number
+
     try:
-        values = tuple(float(v) for v in text.split(","))
+        values = tuple(float(v) for v in text.split(",")) if plain_number(text) else ()
     except ValueError:
         values = ()
     if len(values) != 3 or not all(math.isfinite(v) for v in values):
