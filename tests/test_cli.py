@@ -217,6 +217,7 @@ def test_bad_save_writes_nothing(tmp_path):
     (["porosity", "x.json", "--divisions", "0"], "divisions"),
     (["convert", "s.json", "--out", "o.json"], "--from"),
     (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1,2"], "origin"),
+    (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1_0,2,3"], "origin"),
     (["frobnicate"], "frobnicate"),
 ])
 def test_bad_usage_exits_2_with_one_line(tmp_path, args, word):
