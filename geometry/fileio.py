@@ -58,7 +58,7 @@ def bounded_int(text: str) -> int:
     return int(text)
 
 
-def regular_file(path: Path, what: str = "file") -> os.stat_result:
+def regular_file(path: Path) -> os.stat_result:
     """``path``'s status, if it is a regular file; else :class:`InputError` naming it.
 
     A device (``/dev/zero``) or a named pipe reports no size, or blocks its
@@ -67,7 +67,7 @@ def regular_file(path: Path, what: str = "file") -> os.stat_result:
     try:
         st = path.stat()
     except FileNotFoundError:
-        raise InputError(f"{path}: {what} not found") from None
+        raise InputError(f"{path}: file not found") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if stat.S_ISDIR(st.st_mode):
