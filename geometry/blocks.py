@@ -520,6 +520,11 @@ def mesh_block(path: str, name: str | None = None) -> Block:
         raise InputError(f"{path}: mesh is not watertight (it has holes or open edges)")
     if not mesh.is_winding_consistent:
         raise InputError(f"{path}: mesh triangles are not consistently wound")
+    if (bodies := mesh.body_count) > 1:
+        # Two closed shells, overlapping or apart, are not one block: two overlapping unit
+        # cubes were read as 2.0 m3 where the solid they make is 1.875 m3.
+        raise InputError(f"{path}: mesh has {bodies} separate closed shells; a block is one solid "
+                         "(join them into one, a union, before exporting)")
     size = float(np.ptp(mesh.vertices, axis=0).max())
     if not MIN_SIZE <= size <= MAX_SIZE:
         raise InputError(f"{path}: the block is {size:g} m across, and blocks are {MIN_SIZE:g} to "

@@ -258,6 +258,18 @@ def test_a_sliver_or_a_needle_is_an_input_error(tmp_path, extents, thin):
     assert get_block("box:6x0.3x0.3").height == pytest.approx(0.3)  # 20 times: a slender beam
 
 
+def test_a_mesh_of_two_shells_is_an_input_error(tmp_path):
+    """Two overlapping cubes as two closed shells were read as 2.0 m3 (the solid is 1.875)."""
+    a, b = trimesh.creation.box([1.0, 1.0, 1.0]), trimesh.creation.box([1.0, 1.0, 1.0])
+    b.apply_translation([0.5, 0.5, 0.5])
+    path = tmp_path / "two.stl"
+    trimesh.util.concatenate([a, b]).export(path)
+    with pytest.raises(InputError, match="2 separate closed shells"):
+        mesh_block(str(path))
+    trimesh.boolean.union([a, b], engine="manifold").export(path)
+    assert mesh_block(str(path)).volume == pytest.approx(1.875)
+
+
 def test_a_mesh_file_whose_text_is_not_utf8_loads(tmp_path):
     """A maker's OBJ with a Latin-1 comment is a good mesh: trimesh decodes its text with
     charset-normalizer (a dependency for that)."""
