@@ -129,18 +129,39 @@ class Reach:
                 break
         return allowed
 
-    def __call__(self, rotation: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Least distance of each ``(n, 2)`` point to the block turned by ``rotation`` (3x3)
-        anywhere inside the zone; infinite where it fits nowhere."""
+    def swept(self, rotation: np.ndarray) -> list[np.ndarray]:
+        """Where each piece of the block turned by ``rotation`` (3x3) can lie inside the zone:
+        a convex polygon per piece, ``K + P``; none where the block fits nowhere."""
         xz = [(v @ rotation.T)[:, [0, 2]] for v in self.pieces]
         allowed = self.allowed(np.concatenate(xz))
         if len(allowed) < 3:
-            return np.full(len(points), np.inf)
-        least = np.full(len(points), np.inf)
-        for k in xz:
-            swept = _hull((_hull(k)[:, None, :] + allowed[None]).reshape(-1, 2))
-            least = np.minimum(least, _polygon_distance(points, swept))
-        return least
+            return []
+        return [_hull((_hull(k)[:, None, :] + allowed[None]).reshape(-1, 2)) for k in xz]
+
+    def __call__(self, rotation: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Least distance of each ``(n, 2)`` point to the block turned by ``rotation`` (3x3)
+        anywhere inside the zone; infinite where it fits nowhere."""
+        return nearest(points, self.swept(rotation))
+
+
+def nearest(points: np.ndarray, polygons: list[np.ndarray], least: np.ndarray | None = None) -> np.ndarray:
+    """Distance of each ``(n, 2)`` point to the nearest of convex ``polygons``, or its ``least``
+    so far where that is nearer.
+
+    A point is measured against a polygon only where the polygon's bounding box
+    comes nearer than that: no polygon is nearer than its box, so the result
+    is exact. Over a thousand orientations most points are soon reached (0) or
+    far from every new polygon; on a 1:1000 slope of 15 822 samples this
+    took the floor from 68 s to a few.
+    """
+    least = np.full(len(points), np.inf) if least is None else least.copy()
+    for poly in polygons:
+        lo, hi = poly.min(axis=0), poly.max(axis=0)
+        box = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
+        near = np.flatnonzero(box < least)
+        if len(near):
+            least[near] = np.minimum(least[near], _polygon_distance(points[near], poly))
+    return least
 
 
 def crane_rotations(scene: Scene, yaws: int = YAWS) -> list[np.ndarray]:
@@ -167,21 +188,25 @@ def least_distances(scene: Scene, random: int = RANDOM, yaws: int = YAWS, refine
         # Unit quaternions of normal draws: uniform over the rotations.
         q = np.random.default_rng(seed).normal(size=(random, 4))
         rotations += list(Rotation.from_quat(q / np.linalg.norm(q, axis=1)[:, None]).as_matrix())
-    each = np.array([reach(r, points) for r in rotations])
-    least = each.min(axis=0)
+    swept = [reach.swept(r) for r in rotations]
+    least = np.full(len(points), np.inf)
+    for polygons in swept:
+        least = nearest(points, polygons, least)
     half = BARE_FRACTION * scene.block.height
     bare = np.flatnonzero(least > half)
     # A few points still bare, spread over them, and the furthest, each searched from its
     # best orientations; every orientation found is measured at every point.
     spread = bare[np.linspace(0, len(bare) - 1, min(len(bare), REFINE_POINTS)).astype(int)]
-    for i in np.union1d(spread, [np.argmax(least)]) if refine else ():
+    searched = np.union1d(spread, [np.argmax(least)]) if refine else np.array([], dtype=int)
+    each = np.array([nearest(points[searched], polygons) for polygons in swept])
+    for column, i in enumerate(searched):
         def at_point(v: np.ndarray, p: np.ndarray = points[i:i + 1]) -> float:
             return float(reach(Rotation.from_rotvec(v).as_matrix(), p)[0])
 
-        for j in np.argsort(each[:, i])[:refine]:
+        for j in np.argsort(each[:, column], kind="stable")[:refine]:
             found = minimize(at_point, Rotation.from_matrix(rotations[j]).as_rotvec(), method="Nelder-Mead",
                              options={"xatol": 1e-3, "fatol": 1e-4, "maxiter": 300})
-            least = np.minimum(least, reach(Rotation.from_rotvec(found.x).as_matrix(), points))
+            least = nearest(points, reach.swept(Rotation.from_rotvec(found.x).as_matrix()), least)
     return points, weights, least, len(rotations)
 
 

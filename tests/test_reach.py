@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from geometry.coverage import distance_to_block
 from geometry.pose import Pose
-from geometry.reach import Reach, least_distances, section_samples
+from geometry.reach import Reach, _polygon_distance, least_distances, nearest, section_samples
 from geometry.scene import load_scene
 from geometry.tolerance import outside_volume
 from tests.conftest import shoha
@@ -62,6 +62,23 @@ def test_a_block_where_reach_allows_it_lies_in_the_zone_and_no_nearer_than_reach
                 assert (outside_volume(shake, pose, mini.tolerance) == 0.0) == inside
                 if inside:
                     assert (distance_to_block(world, shake, pose) >= least - 1e-9).all()
+
+
+def test_nearest_skips_only_polygons_no_nearer_than_the_distance_so_far(mini):
+    """The box test that spares most distance sums changes no distance: against every polygon
+    measured in full, from a start that is infinite, zero, or in between."""
+    reach = Reach(mini)
+    points, _ = section_samples(mini)
+    q = np.random.default_rng(5).normal(size=(12, 4))
+    polygons = [p for r in Rotation.from_quat(q / np.linalg.norm(q, axis=1)[:, None]).as_matrix()
+                for p in reach.swept(r)]
+    assert len(polygons) > 12
+    full = np.min([_polygon_distance(points, p) for p in polygons], axis=0)
+    assert (full > 0).any() and (full == 0).any()
+    np.testing.assert_array_equal(nearest(points, polygons), full)
+    start = np.random.default_rng(6).uniform(0.0, 2.0 * full.max(), len(points))
+    start[::7] = 0.0
+    np.testing.assert_array_equal(nearest(points, polygons, start), np.minimum(full, start))
 
 
 def test_scene_info_floor(tmp_path):
