@@ -44,7 +44,7 @@ from scipy.spatial import HalfspaceIntersection
 
 from .constants import CONCRETE_DENSITY, tol
 from .errors import InputError
-from .fileio import atomic_write
+from .fileio import atomic_write, regular_file
 from .polytope import ConvexPolytope, PieceStack
 
 if TYPE_CHECKING:
@@ -57,6 +57,9 @@ SHAKE_4T_AREA = 9.796  # m^2
 #: Largest user mesh accepted, in triangles. Manufacturer CAD of a block is a
 #: few thousand; CoACD on millions would run for hours.
 MAX_MESH_FACES = 500_000
+#: A mesh file's largest size, checked before it is read: an ASCII STL of MAX_MESH_FACES
+#: triangles is about 130 MB.
+MAX_MESH_BYTES = 256 * 2**20
 
 
 @dataclass(frozen=True, eq=False)
@@ -506,10 +509,9 @@ def mesh_block(path: str, name: str | None = None) -> Block:
     """
     name = name or f"mesh:{path}"
     p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{path}: is a folder, not a mesh file")
-    if not p.is_file():
-        raise InputError(f"{path}: mesh file not found")
+    size = regular_file(p).st_size  # not a folder, device or pipe (a pipe blocks its reader)
+    if size > MAX_MESH_BYTES:
+        raise InputError(f"{path}: mesh file is {size} bytes, more than {MAX_MESH_BYTES}")
     raw = p.read_bytes()
     digest = hashlib.sha256(raw).hexdigest()
     vertices, faces = _load_mesh(p)

@@ -172,6 +172,12 @@ def test_non_watertight_mesh_exits_2(tmp_path):
     _assert_bad(shoha("check", str(lay)), "open.stl")
 
 
+def _sparse(path, size):
+    """A file of ``size`` bytes that takes no disk (a hole): a mesh file too big to read."""
+    with open(path, "wb") as f:
+        f.truncate(size)
+
+
 def _one_triangle_stl(path):
     trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False).export(path)
 
@@ -184,7 +190,9 @@ def _one_triangle_stl(path):
      "mesh has no triangles"),
     ("mesh:empty.stl", lambda d: (d / "empty.stl").write_bytes(b""), "the mesh file is empty"),
     ("mesh:tri.stl", lambda d: _one_triangle_stl(d / "tri.stl"), "1 triangle(s)"),
-    ("mesh:.", lambda d: None, "is a folder, not a mesh file"),
+    ("mesh:.", lambda d: None, "is a folder, not a file"),
+    ("mesh:pipe.stl", lambda d: os.mkfifo(d / "pipe.stl"), "not a regular file"),
+    ("mesh:big.stl", lambda d: _sparse(d / "big.stl", 300 * 2**20), "more than 268435456"),
     ("tetrapod:0.01", lambda d: None, "between 0.05 and 100 m"),
     ("tetrapod:", lambda d: None, "between 0.05 and 100 m"),
     # A mesh in millimetres read as metres: a 2 km block, not a 2 m one.
