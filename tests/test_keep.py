@@ -38,7 +38,7 @@ def test_kept_blocks_are_written_byte_for_byte(tmp_path, partial, how):
         keep.write_text(json.dumps(to_unity_save(read_layout(partial), (0.0, 0.0, 0.0))))
     out = tmp_path / "out.json"
     d = _json(shoha("optimize", "mini", "--keep", str(keep), "--out", str(out), "--seed", "1",
-                    "--time-limit", "90", "--json"))
+                    "--time-limit", "30", "--json"))
     written = json.loads(out.read_text())["blocks"]
     given = json.loads(partial.read_text())["blocks"]
     assert [json.dumps(b, sort_keys=True) for b in written[:30]] == [json.dumps(b, sort_keys=True)

@@ -393,15 +393,21 @@ def _light(seed_scene, seed, seconds=120):
                     strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
 
 
+@pytest.fixture(scope="module")
+def light_tiny_1(tiny):
+    """``_light(tiny, 1)``, run once for the tests that read it (about 25 s)."""
+    return _light(tiny, 1)
+
+
 def _poses(layout):
     return {json.dumps([list(p.pose.position), list(p.pose.quaternion)]) for p in layout.blocks}
 
 
-def test_a_covered_attempt_that_falls_short_is_not_kept(tiny):
+def test_a_covered_attempt_that_falls_short_is_not_kept(tiny, light_tiny_1):
     """On ``tiny`` the first layout reaches its count and porosity and leaves 19 % bare; the
     attempt with toe rows first falls short of the count there (rows on a 4 m slice), so the
     layout is the one without it, byte for byte, but for the blocks the covering repair moved."""
-    r = _light(tiny, 1)
+    r = light_tiny_1
     plain = optimize(tiny, seed=1, time_limit=120, cover=False,
                      strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
     attempts = next(p for p in r.phases if p["strategy"] == "attempts")
@@ -498,8 +504,8 @@ def test_beam_restarts_go_on_while_a_full_layout_misses_the_target(tiny, near, s
     assert phase.stats.restarts == searches
 
 
-def test_same_seed_same_layout_different_seed_different(tiny):
-    a = _light(tiny, 1).layout.dumps()
+def test_same_seed_same_layout_different_seed_different(tiny, light_tiny_1):
+    a = light_tiny_1.layout.dumps()
     b = _light(tiny, 1).layout.dumps()
     c = _light(tiny, 2).layout.dumps()
     assert a == b
