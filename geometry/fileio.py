@@ -21,9 +21,29 @@ from .errors import InputError
 MAX_JSON_BYTES = 64 * 1024 * 1024
 
 
+def check_replaceable(path: str | os.PathLike) -> None:
+    """Refuse an output path that a file cannot replace: a folder, or anything but a regular
+    file (a device such as ``/dev/null``, a named pipe, a socket).
+
+    Output files are written by a rename over the path, which would put a
+    regular file in place of a device node (as root, ``--out /dev/null``
+    replaced the machine's ``/dev/null``). A path that does not exist yet is fine.
+    """
+    try:
+        st = os.stat(path)
+    except OSError:
+        return  # missing, or unreachable: the write itself says so
+    if stat.S_ISDIR(st.st_mode):
+        raise InputError(f"{path}: is a folder, not a file")
+    if not stat.S_ISREG(st.st_mode):
+        raise InputError(f"{path}: not a regular file (a device, pipe or socket); "
+                         "output files are written whole, in place of what is there")
+
+
 def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     """Write ``data`` to ``path`` through a temporary file and an atomic rename."""
     path = Path(path)
+    check_replaceable(path)
     if isinstance(data, str):
         data = data.encode()
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

@@ -278,6 +278,40 @@ def test_paths_the_system_refuses_exit_2_with_one_line(tmp_path):
     assert names == ["good.json", "loop1.json", "loop2.json", "pipe.json"]
 
 
+@pytest.mark.parametrize("verb, suffix", [
+    (["convert", "{good}", "--from", "unity", "--out"], ".json"),
+    (["settle", "{good}", "--seconds", "0.1", "--out"], ".json"),
+    (["render", "{good}", "--out"], ".png"),
+    (["score", "{good}", "--reference", "{good}", "--html"], ".html"),
+    (["block", "export", "shake-4t", "--out"], ".stl"),
+    (["scene", "export", "mini", "--out"], ""),
+])
+def test_an_output_that_is_a_pipe_is_refused_and_left_a_pipe(tmp_path, verb, suffix):
+    """Outputs are written by a rename over the path: over a device or a pipe that would put a
+    file in its place (as root, ``--out /dev/null`` replaced the machine's /dev/null)."""
+    good = tmp_path / "good.json"
+    if verb[0] == "convert":
+        good.write_text(json.dumps({"blocks": [{"position": {"x": 0.0, "y": 1.0, "z": 3.0},
+                                                "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}]}))
+    else:
+        good.write_text(_layout_text())
+    target = tmp_path / f"pipe{suffix}"
+    if suffix:
+        os.mkfifo(target)
+        out = target
+    else:  # scene export writes a folder of meshes: one of them is the pipe
+        target.mkdir()
+        os.mkfifo(target / "foundation.stl")
+        out = target
+    r = shoha(*[a.format(good=good) for a in verb], str(out), timeout=120)
+    _assert_bad(r, "not a regular file")
+    for p in [target] if suffix else list(target.iterdir()):
+        assert p.is_fifo() or p.is_dir(), p
+    assert not suffix or sorted(q.name for q in tmp_path.iterdir()) == sorted(["good.json", target.name])
+    if not suffix:
+        assert [q.name for q in target.iterdir()] == ["foundation.stl"]
+
+
 def test_a_deeply_nested_scene_file_exits_2_with_one_line(tmp_path):
     scene = tmp_path / "deep.toml"
     scene.write_text('block = "shake-4t"\nfoo = ' + "[" * 2000 + "]" * 2000 + "\n")

@@ -11,6 +11,7 @@ from typing import Any
 import click
 
 from geometry.errors import InputError
+from geometry.fileio import check_replaceable
 
 
 def emit(payload: dict[str, Any], as_json: bool, human: str) -> None:
@@ -29,8 +30,7 @@ def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
     parent = p.parent if str(p.parent) else Path(".")
     if not parent.is_dir():
         raise InputError(f"{path}: folder {parent} does not exist")
-    if p.is_dir():
-        raise InputError(f"{path}: is a folder, not a file")
+    check_replaceable(p)
     return p
 
 

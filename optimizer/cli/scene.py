@@ -84,7 +84,7 @@ def scene_export(scene_name: str, out: str, as_json: bool) -> None:
     """
     import trimesh
 
-    from geometry.fileio import atomic_write
+    from geometry.fileio import atomic_write, check_replaceable
     from geometry.scene import load_scene
 
     s = load_scene(scene_name)
@@ -106,8 +106,7 @@ def scene_export(scene_name: str, out: str, as_json: bool) -> None:
     files = {folder / f"{label}.stl": trimesh.Trimesh(v, f, process=True).export(file_type="stl")
              for label, (v, f) in meshes.items()}
     for path in files:
-        if path.is_dir():
-            raise InputError(f"{path}: is a folder, not a file")
+        check_replaceable(path)
     folder.mkdir(exist_ok=True)
     paths = []
     for path, data in files.items():
