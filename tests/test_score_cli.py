@@ -91,6 +91,15 @@ def test_completion_time_from_a_save_with_times(tmp_path, layout_score):
     assert got["elapsed_s"] == 1250.0 and got["completion_time_s"] is None
     assert got["blocks_per_hour"] == 3600.0 * 30 / 1250.0
     assert "1250 s, 86.4 blocks per hour" in shoha("score", str(save), "--reference", str(REFERENCE)).stdout
+    # Times too short for any rate (3600 / 5e-324 is infinite, and was a traceback, with the
+    # --html report written all the same): no rate, and the report.
+    for block in data["blocks"]:
+        block["time_s"] = 5e-324
+    del data["elapsed_s"]
+    save.write_text(json.dumps(data))
+    html = tmp_path / "report.html"
+    got = _json(shoha("score", str(save), "--reference", str(REFERENCE), "--json", "--html", str(html)))
+    assert got["elapsed_s"] == 5e-324 and got["blocks_per_hour"] is None and html.is_file()
 
 
 def test_a_save_without_times_reports_none(layout_score):

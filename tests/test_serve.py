@@ -360,6 +360,12 @@ def test_times_give_elapsed_and_blocks_per_hour(http, busy_session):
     r = http.put(f"/sessions/{sid}/layout",
                  json={"blocks": [BLOCK, {**BLOCK, "time_s": 40.0}], "elapsed_s": 90.0})
     assert r.json()["elapsed_s"] == 90.0 and r.json()["blocks_per_hour"] == pytest.approx(2 / 90 * 3600)
+    # A time too short for a rate (the smallest float: 3600 / 5e-324 is infinite, and was a 500
+    # on every request of the session after it): no rate, and the session answers as before.
+    r = http.put(f"/sessions/{sid}/layout", json={"blocks": [{**BLOCK, "time_s": 5e-324}]})
+    assert r.status_code == 200 and r.json()["elapsed_s"] == 5e-324 and r.json()["blocks_per_hour"] is None
+    assert http.get(f"/sessions/{sid}").status_code == 200
+    assert put(http, sid, 1, {**BLOCK, "position": {"x": -3.9, "y": 0.63, "z": 3.5}, "time_s": 5e-324})
 
 
 # --- the socket, the schema, the page -------------------------------------------------------------

@@ -81,6 +81,18 @@ PLACE_FRACTION = 0.25
 CACHED_STAGES = 256
 
 
+
+#: The shortest session, in seconds, over which a rate of blocks per hour is given: a save
+#: whose blocks all carry ``time_s`` 5e-324 gave an infinite rate, which no JSON can hold.
+MIN_RATE_SECONDS = 1e-3
+
+
+def per_hour(blocks: int, elapsed_s: float | None) -> float | None:
+    """Blocks per hour over ``elapsed_s`` seconds; None without a time, or under ``MIN_RATE_SECONDS``."""
+    if elapsed_s is None or elapsed_s < MIN_RATE_SECONDS:
+        return None
+    return 3600.0 * blocks / elapsed_s
+
 @dataclass(frozen=True)
 class ScoreWeights:
     """Points per fault (docs/scoring.md); a trainer may change any of them.
@@ -608,10 +620,8 @@ class ScoreReport:
 
     @property
     def blocks_per_hour(self) -> float | None:
-        """Blocks laid per hour of the session, or None without times (or at 0 s)."""
-        if self.elapsed_s is None or self.elapsed_s <= 0:
-            return None
-        return 3600.0 * self.blocks / self.elapsed_s
+        """Blocks laid per hour of the session, or None without times (:func:`per_hour`)."""
+        return per_hour(self.blocks, self.elapsed_s)
 
     def reweighted(self, weights: ScoreWeights) -> ScoreReport:
         """The same measurements scored with other weights (no settle or geometry again)."""

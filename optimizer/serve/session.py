@@ -23,6 +23,7 @@ import numpy as np
 from geometry.layout import FORMAT
 from geometry.pose import Pose
 from geometry.scene import Scene
+from optimizer.score.scoring import per_hour
 
 from .bodies import MAX_SESSION_BLOCKS, BlockBody, BodyError
 from .live import LiveLayout
@@ -121,7 +122,7 @@ class Session:
             "protruding": live.protruding(),
             "unstable": sorted(self.unstable),
             "elapsed_s": elapsed,
-            "blocks_per_hour": 3600.0 * n / elapsed if elapsed else None,
+            "blocks_per_hour": per_hour(n, elapsed),
             "reference": reference,
             "seconds": time.perf_counter() - started,
         }
