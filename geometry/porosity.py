@@ -229,7 +229,13 @@ class VoxelGrid:
                 raise InputError("give divisions or a voxel size, not both")
             if not (np.isfinite(voxel_size) and voxel_size > 0):
                 raise InputError(f"voxel size must be a positive number of metres, not {voxel_size}")
-            shape = np.maximum(1, np.ceil(extent / voxel_size - tol.relative)).astype(np.int64)
+            # Counted in floats first: at 1e-19 m the counts overflow int64 and their product
+            # came out negative, past the size check.
+            counts = np.maximum(1.0, np.ceil(extent / voxel_size - tol.relative))
+            if math.prod(float(c) for c in counts) > MAX_VOXELS:
+                raise InputError(f"voxel size {voxel_size:g} m makes a grid of "
+                                 f"{' x '.join(f'{c:.3g}' for c in counts)} voxels, more than {MAX_VOXELS:.3g}")
+            shape = counts.astype(np.int64)
             size = np.full(3, float(voxel_size))
         else:
             divisions = 100 if divisions is None else divisions

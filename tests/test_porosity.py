@@ -206,6 +206,10 @@ def test_voxel_size_instead_of_divisions(mini, inside25):
         porosity(mini, inside25, "voxel", divisions=10, voxel_size=0.1)
     with pytest.raises(InputError, match="more than"):
         porosity(mini, inside25, "voxel", divisions=2000)
+    # Sizes so small that the voxel counts overflow a 64-bit integer are refused all the same.
+    for tiny in (1e-4, 1e-18, 1e-19, 1e-300):
+        with pytest.raises(InputError, match=f"voxel size {tiny:g} m makes a grid of"):
+            porosity(mini, inside25, "voxel", voxel_size=tiny)
 
 
 @pytest.mark.parametrize("method", ["exact", "voxel", "voxel-any"])
