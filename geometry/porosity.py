@@ -233,8 +233,9 @@ class VoxelGrid:
             # came out negative, past the size check.
             counts = np.maximum(1.0, np.ceil(extent / voxel_size - tol.relative))
             if math.prod(float(c) for c in counts) > MAX_VOXELS:
-                raise InputError(f"voxel size {voxel_size:g} m makes a grid of "
-                                 f"{' x '.join(f'{c:.3g}' for c in counts)} voxels, more than {MAX_VOXELS:.3g}")
+                grid = " x ".join(f"{c:.3g}" for c in counts)
+                raise InputError(f"voxel size {voxel_size:g} m makes a grid of {grid} voxels, "
+                                 f"more than {MAX_VOXELS:.3g}")
             shape = counts.astype(np.int64)
             size = np.full(3, float(voxel_size))
         else:
