@@ -172,6 +172,7 @@ def layout_from_dict(data: Any, source: str, base_dir: str | None) -> Layout:
     if len(blocks) > MAX_BLOCKS:
         raise InputError(f"{source}: {len(blocks)} blocks is more than {MAX_BLOCKS}")
     extra = {k: v for k, v in data.items() if k not in ("format", "scene", "blocks")}
+    check_type_count((raw.get("type") for raw in blocks if isinstance(raw, dict)), source)
     seen: set[int] = set()
     placements = []
     for index, raw in enumerate(blocks):
@@ -186,18 +187,45 @@ def layout_from_dict(data: Any, source: str, base_dir: str | None) -> Layout:
     return Layout(scene, placements, extra, base_dir)
 
 
+#: Most block types (names) in one layout or save: a breakwater's are one or two.
+MAX_BLOCK_TYPES = 16
+
+
+def check_type_count(kinds: Any, source: str) -> None:
+    """Raise InputError where ``kinds`` (type names, strings among them counted) are more than
+    ``MAX_BLOCK_TYPES``: each is a model built when it is first read, and 1500 tetrapod sizes
+    took 7 s to read before any check refused them."""
+    count = len({k for k in kinds if isinstance(k, str)})
+    if count > MAX_BLOCK_TYPES:
+        raise InputError(f"{source}: {count} block types, more than {MAX_BLOCK_TYPES}")
+
+
 def refuse_crowded(placements: list[Placement], base_dir: str | None, source: str) -> None:
     """Raise InputError for blocks one inside another by the dozen (``checks.check_not_crowded``,
-    for each block type): every check of such a file grows with the square of its count
-    (300 copies of one pose took ``shoha check`` 13 s, and 100 000 ran it out of memory)."""
-    from .checks import check_not_crowded  # the checks pull in FCL and manifold3d
+    for each block shape, then ``check_not_crowded_across`` the shapes), or for more than
+    ``MAX_BLOCK_TYPES`` block types: every check of such a file grows with the square of its
+    count (300 copies of one pose took ``shoha check`` 13 s, and 100 000 ran it out of memory)."""
+    from .checks import check_not_crowded, check_not_crowded_across  # they pull in FCL and manifold3d
 
-    by_type: dict[str, list[Placement]] = {}
+    kinds = list(dict.fromkeys(p.type for p in placements))
+    check_type_count(kinds, source)
+    # Grouped by shape, not by name: tetrapod:2 and tetrapod:02 are one block.
+    blocks = {kind: get_block(kind, base_dir) for kind in kinds}
+
+    def shape(kind: str) -> tuple[float, float]:
+        return round(blocks[kind].volume, 9), round(blocks[kind].bounding_radius, 9)
+
+    shapes: dict[tuple[float, float], tuple[Any, list[Placement]]] = {}
+    for kind in kinds:
+        shapes.setdefault(shape(kind), (blocks[kind], []))
     for p in placements:
-        by_type.setdefault(p.type, []).append(p)
-    for kind, group in by_type.items():
-        positions = np.array([p.pose.position for p in group]).reshape(-1, 3)
-        check_not_crowded(get_block(kind, base_dir), positions, [p.id for p in group], source)
+        shapes[shape(p.type)][1].append(p)
+    groups = [(block, np.array([p.pose.position for p in group]).reshape(-1, 3), [p.id for p in group])
+              for block, group in shapes.values()]
+    for group in groups:
+        check_not_crowded(*group, source)
+    if len(groups) > 1:
+        check_not_crowded_across(groups, source)
 
 
 def check_seconds(value: Any, what: str, where: str) -> float:

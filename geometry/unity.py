@@ -30,6 +30,7 @@ from .layout import (
     check_elapsed,
     check_position,
     check_seconds,
+    check_type_count,
     normalised_quaternion,
     refuse_crowded,
 )
@@ -80,6 +81,7 @@ def read_unity_save(
     origin_arr = np.asarray(origin, dtype=float)
     base_dir = str(path.resolve().parent)
     get_block(block, base_dir)
+    check_type_count((raw.get("type", block) for raw in raw_blocks if isinstance(raw, dict)), source)
     placements = []
     for index, raw in enumerate(raw_blocks):
         where = f"{source}: block #{index}"

@@ -198,3 +198,35 @@ def test_a_layout_of_blocks_one_inside_another_is_refused_on_reading(tmp_path, s
         b["position"] = [0.0, 0.5 * i, 3.0]
     path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": blocks}))
     assert len(read_layout(path).blocks) == 300
+
+
+def _heap(tmp_path, types, copies):
+    """A layout of ``copies`` blocks of each type in ``types``, every one at one pose."""
+    blocks = [_block(id=i * copies + j, type=kind, position=[0.0, 6.0, 3.0])
+              for i, kind in enumerate(types) for j in range(copies)]
+    path = tmp_path / "heap.json"
+    path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": blocks}))
+    return path
+
+
+def test_one_block_under_several_names_is_one_block_in_the_crowding_check(tmp_path):
+    """tetrapod:2, tetrapod:02 and tetrapod:2.0 are one shape: 150 copies of one pose, 50 under
+    each name, are refused as 150 of one block would be (113 tetrapods fit within reach)."""
+    with pytest.raises(InputError, match=r"has 149 blocks within reach, more than the 113"):
+        read_layout(_heap(tmp_path, ["tetrapod:2", "tetrapod:02", "tetrapod:2.0"], 50))
+
+
+def test_blocks_of_many_sizes_in_one_place_are_refused(tmp_path):
+    """Sixteen tetrapod sizes, ten copies each, at one pose: no size alone is crowded, all
+    together are; and more than sixteen types are refused before any is built (1500 sizes
+    held shoha check for minutes)."""
+    sizes = [f"tetrapod:{2.0 + 0.001 * i:.3f}" for i in range(16)]
+    with pytest.raises(InputError, match=r"m3 of blocks no larger than it within reach, more than"):
+        read_layout(_heap(tmp_path, sizes, 10))
+    with pytest.raises(InputError, match=r"heap.json: 17 block types, more than 16"):
+        read_layout(_heap(tmp_path, sizes + ["tetrapod:3"], 1))
+    # Two sizes side by side along the mound, as a layout of two block types may be, are read.
+    blocks = [_block(id=i, type=sizes[i % 2], position=[0.0, 1.5 * i, 3.0]) for i in range(40)]
+    path = tmp_path / "two.json"
+    path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": blocks}))
+    assert len(read_layout(path).blocks) == 40

@@ -110,3 +110,12 @@ def test_a_save_of_blocks_one_inside_another_is_refused(tmp_path):
     path.write_text(json.dumps({"blocks": [block] * 100}))
     with pytest.raises(InputError, match="heap.json: block 0 has 99 blocks within reach"):
         read_unity_save(path)
+    # Under several names of one block, or of many sizes, they are refused all the same.
+    names = [{**block, "type": kind} for kind in ("tetrapod:2", "tetrapod:2.0", "tetrapod:02")]
+    path.write_text(json.dumps({"blocks": names * 50}))
+    with pytest.raises(InputError, match="heap.json: block 0 has 149 blocks within reach"):
+        read_unity_save(path)
+    sizes = [{**block, "type": f"tetrapod:{2.0 + 0.001 * i:.3f}"} for i in range(17)]
+    path.write_text(json.dumps({"blocks": sizes}))
+    with pytest.raises(InputError, match="heap.json: 17 block types, more than 16"):
+        read_unity_save(path)
