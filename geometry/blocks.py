@@ -115,6 +115,12 @@ class Block:
         return float(self.manifold.surface_area())
 
     @cached_property
+    def depth(self) -> float:
+        """The deepest a point inside the block can lie under its surface, at most, m: half its
+        thinnest extent (of its oriented bounding box, which holds any ball inside it)."""
+        return 0.5 * float(self.trimesh.bounding_box_oriented.primitive.extents.min())
+
+    @cached_property
     def height(self) -> float:
         """Height H, m: its height standing on its most stable rest pose.
 

@@ -51,6 +51,11 @@ CELLS_PER_H = 16
 #: The most surface samples the default spacing gives: ``full`` (2310 m^2 at H / 16) has 214 000.
 MAX_SAMPLES = 500_000
 
+#: The most samples on one block's surface: a box of 100 x 100 x 2 m (a size and shape the
+#: block rules allow) had 1.3 million at its H / 16, and three such held ``shoha check``
+#: for 62 s and 3.4 GB. A Shake Block has about a thousand.
+MAX_BLOCK_SAMPLES = 20_000
+
 #: Surface points per nearest-sample query, the deadline read between them: 0.015 s on the
 #: ``mini`` reference (16 874 points, 0.06 s in all), 0.55 s among 27 slender beams.
 QUERY_CHUNK = 4096
@@ -201,6 +206,23 @@ def point_triangle_distance(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
     closest = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, closest)
     closest = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, closest)
     return np.linalg.norm(p - closest, axis=1)
+
+
+def _inside_any(points: np.ndarray, placed: Placed, centres: cKDTree, radius: float) -> np.ndarray:
+    """Whether each world point (n, 3) lies inside a piece of any placed block (``centres``:
+    their positions; ``radius``: the largest bounding radius)."""
+    held = np.zeros(len(points), dtype=bool)
+    groups: dict[int, list[int]] = {}
+    for i, near in enumerate(centres.query_ball_point(points, radius) if len(points) else ()):
+        for k in near:
+            groups.setdefault(int(k), []).append(i)
+    for k, members in groups.items():
+        idx = np.array(members)
+        _, block, pose = placed[k]
+        local = pose.inverse_apply(points[idx])
+        for piece in block.pieces:
+            held[idx[np.all(local @ piece.normals.T <= piece.offsets, axis=1)]] = True
+    return held
 
 
 def distance_to_block(points: np.ndarray, block: Block, pose: Pose) -> np.ndarray:
@@ -378,7 +400,11 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
         # A block is sampled no finer than its own H / CELLS_PER_H: a layout of Shake Blocks
         # checked against a scene of 5 cm tetrapods put 47 000 samples on each (30 s, 670 MB).
         # The bound below then holds to the coarsest spacing, and the exact distances decide.
-        spacing = {id(block): max(step, block.height / CELLS_PER_H) for _, block, _ in placed}
+        # And no finer than MAX_BLOCK_SAMPLES over its surface (the halving leaves about four
+        # samples to each spacing squared of it).
+        spacing = {id(block): max(step, block.height / CELLS_PER_H,
+                                  math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
+                   for _, block, _ in placed}
         step = max(spacing.values())
         clouds = []
         for _, block, pose in placed:
@@ -392,11 +418,17 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
         for lo in range(0, len(pts), QUERY_CHUNK):
             check()
             upper[lo:lo + QUERY_CHUNK], nearest[lo:lo + QUERY_CHUNK] = tree.query(pts[lo:lo + QUERY_CHUNK])
-        dist = upper.copy()  # the true distance is in [upper - step, upper]
+        dist = upper.copy()  # the true distance is in [upper - step, upper], or 0 inside a block
         # Exact where the bound leaves the verdict open, and near the largest distance.
         todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step) | exact
         centres = cKDTree(np.array([pose.position for _, _, pose in placed]))
         radius = max(block.bounding_radius for _, block, _ in placed)
+        # A point inside a block is at 0, however far the block's surface: the design surface
+        # inside a box 2 m thick was called bare 0.96 m from its sides. Only a point no further
+        # from a sample than the deepest any block's inside lies can be one.
+        deep = np.flatnonzero(~todo & (upper > limit)
+                              & (upper <= max(block.depth for _, block, _ in placed) + step))
+        dist[deep[_inside_any(pts[deep], placed, centres, radius)]] = 0.0
         points = np.flatnonzero(todo)
         dist[points] = np.inf
         # The blocks that may hold each open point's nearest surface, gathered per block, so

@@ -159,6 +159,31 @@ def test_blocks_far_larger_than_the_scenes_are_sampled_by_their_own_size(boxes, 
     assert c.max_bare_m == pytest.approx(exact.max(), abs=1e-12)
 
 
+def test_the_design_surface_inside_a_thick_block_is_covered(mini, monkeypatch):
+    """A 20 x 20 x 4 m slab through ``mini``'s crest: the crest inside it lies 2 m from the slab's
+    faces, past H/2 = 0.83 m, yet inside a block (it was called bare). The slab is sampled no
+    finer than MAX_BLOCK_SAMPLES over its surface (at H / 16 it had 1.3 million samples for a
+    100 m slab), and the exact distances still decide: the same bare samples as measured
+    exactly everywhere, and no crest point under the slab bare."""
+    import geometry.coverage as cov
+    from geometry.blocks import get_block
+
+    slab = get_block("box:20x20x4")
+    placed = [(0, slab, Pose([0.0, 6.0, mini.design.z_top], [1, 0, 0, 0]))]
+    asked = []
+    real = cov.block_samples
+    monkeypatch.setattr(cov, "block_samples",
+                        lambda block, spacing: asked.append(spacing) or real(block, spacing))
+    c = coverage(mini, placed)
+    assert min(asked) == pytest.approx(np.sqrt(4.0 * slab.surface_area / cov.MAX_BLOCK_SAMPLES))
+    assert len(real(slab, min(asked))) <= 1.2 * cov.MAX_BLOCK_SAMPLES
+    pts = c.samples.points
+    exact = cov._distances(pts, placed, c.spacing_m, c.bare_distance_m, exact=True)
+    np.testing.assert_array_equal(c.bare, exact > c.bare_distance_m)
+    crest = np.abs(pts[:, 2] - mini.design.z_top) < 1e-9
+    assert crest.sum() > 100 and not c.bare[crest].any()
+
+
 def test_mirror_images_have_the_same_coverage(boxes):
     """A block and its mirror image across the axis: the section is symmetric, so is the measure."""
     cube = boxes.block
