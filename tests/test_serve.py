@@ -527,6 +527,22 @@ def test_any_host_but_localhost_needs_a_token():
     assert len(r.stderr.strip().splitlines()) == 1 and "--token" in r.stderr
 
 
+def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():
+    """Found by the server only after it said it was serving, with exit status 3."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = shoha("serve", "--port", str(port), timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"--port {port}: cannot listen on 127.0.0.1:{port}" in r.stderr
+    r = shoha("serve", "--host", "no-such-host.invalid", "--token", "abcdefgh1", timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "--host no-such-host.invalid: the name does not resolve" in r.stderr
+
+
 def test_a_page_of_another_origin_cannot_watch(service, http):
     from websockets.sync.client import connect
 

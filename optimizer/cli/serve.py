@@ -57,6 +57,7 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
         if not origin.startswith(("http://", "https://")) or origin.endswith("/"):
             raise InputError(f"--cors {origin!r}: give an origin such as http://localhost:8000")
 
+    _check_listen(host, port)
     import logging
 
     from geometry.scene import builtin_scenes, load_scene
@@ -72,6 +73,24 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
     if open_view:
         threading.Thread(target=_open_when_up, args=(host, port, token), daemon=True).start()
     run(service, host, port, token, cors)
+
+
+def _check_listen(host: str, port: int) -> None:
+    """Refuse a host that does not resolve, or a port taken, before anything is loaded or said
+    (the server found it only after saying it was serving, and exited with status 3)."""
+    import socket
+
+    try:
+        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    except (socket.gaierror, UnicodeError) as exc:
+        raise InputError(f"--host {host}: the name does not resolve ({exc})") from None
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server's own socket
+        try:
+            probe.bind(address)
+        except OSError as exc:
+            why = exc.strerror or exc
+            raise InputError(f"--port {port}: cannot listen on {host}:{port} ({why})") from None
 
 
 def _open_when_up(host: str, port: int, token: str | None) -> None:
