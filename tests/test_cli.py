@@ -210,6 +210,17 @@ def test_a_scene_with_a_bad_block_names_the_scene_file_and_the_problem(tmp_path,
     assert "ModuleNotFoundError" not in r.stderr and r.stderr.count("block type") == 0
 
 
+def test_a_save_is_not_converted_over_itself(tmp_path):
+    save = tmp_path / "save.json"
+    text = json.dumps({"blocks": [{"position": {"x": 0.0, "y": 1.0, "z": 3.0},
+                                   "rotation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}}]})
+    save.write_text(text)
+    (tmp_path / "sub").mkdir()
+    for out in (save, tmp_path / "sub" / ".." / "save.json"):
+        _assert_bad(shoha("convert", str(save), "--from", "unity", "--out", str(out)), "is the SAVE itself")
+    assert save.read_text() == text
+
+
 def test_bad_save_writes_nothing(tmp_path):
     save = tmp_path / "save.json"
     save.write_text(json.dumps({"blocks": [{"position": {"x": 1, "y": 2, "z": 3},

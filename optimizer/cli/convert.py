@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
+
+from geometry.errors import InputError
 
 from .common import block_from_cwd, check_out, emit, json_option, parse_origin
 
@@ -27,6 +31,8 @@ def convert(save: str, source: str, out: str, block_type: str, scene_name: str, 
     from geometry.unity import read_unity_save
 
     path = check_out(out)
+    if path.resolve() == Path(save).resolve():
+        raise InputError(f"--out {out}: is the SAVE itself; write the layout elsewhere, or the save is lost")
     # The layout names its scene relative to itself (docs/contract.md), not to the working folder.
     reference = load_scene(scene_name).reference(path.parent)
     layout = read_unity_save(save, scene=reference, block=block_type, origin=parse_origin(origin))
