@@ -284,6 +284,7 @@ BAD = [
      _body(position={"x": 1e9, "y": 0, "z": 0}), JSON, 422),
     ("a block id that is not a number", "PUT", "blocks/five", _body(), JSON, 422),
     ("a block id too large", "PUT", "blocks/99999999999999999999", _body(), JSON, 422),
+    ("a block id in Arabic-Indic digits", "PUT", "blocks/%D9%A3", _body(), JSON, 422),
     ("no content type", "PUT", "blocks/5", _body(), {}, 415),
     ("a form, not JSON", "PUT", "blocks/5", _body(), {"Content-Type": "application/x-www-form-urlencoded"},
      415),

@@ -126,7 +126,7 @@ async def read_json(request: Request) -> Any:
     if kind != "application/json":
         raise BodyError(415, "send the body as JSON with Content-Type: application/json")
     length = request.headers.get("content-length", "")
-    if length.isdigit() and int(length) > MAX_BODY_BYTES:
+    if length.isascii() and length.isdigit() and int(length) > MAX_BODY_BYTES:
         raise BodyError(413, f"body is {length} bytes, more than {MAX_BODY_BYTES}")
     chunks, size = [], 0
     async for chunk in request.stream():

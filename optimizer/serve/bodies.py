@@ -169,7 +169,8 @@ def time_value(value: Any, where: str) -> float | None:
 
 def block_id(text: str) -> int:
     """A block id from a URL path: a non-negative integer, as in layout files."""
-    if not text.isdigit() or len(text) > 16 or int(text) > MAX_BLOCK_ID:
+    # ASCII digits only: str.isdigit and int take ٣ (Arabic-Indic three) as 3.
+    if not (text.isascii() and text.isdigit()) or len(text) > 16 or int(text) > MAX_BLOCK_ID:
         raise BodyError(422, f"block id {text[:40]!r} must be an integer from 0 to {MAX_BLOCK_ID}")
     return int(text)
 
