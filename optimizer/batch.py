@@ -494,7 +494,8 @@ def run_batch(
     start = time.perf_counter()
     keys = [it.key for it in items]
     if len(set(keys)) != len(keys):
-        raise InputError("batch: two items have the same key")
+        twice = next(k for i, k in enumerate(keys) if k in keys[:i])
+        raise InputError(f"batch: {twice} is given twice")
     finished = {str(r.get("item")) for r in out.read() if done is None or done(r)}
     todo = [it for it in items if it.key not in finished]
     summary = BatchSummary(items=len(items), skipped=len(items) - len(todo), path=str(out.path))

@@ -211,6 +211,10 @@ def test_batch_input_errors(tmp_path, saves):
           str(tmp_path / "o.csv")], "seeds"),
         (["batch", "optimize", "mini", "--time-limit", "nan", "--layouts", str(tmp_path / "l"), "--out",
           str(tmp_path / "o.csv")], "--time-limit nan"),
+        (["batch", "optimize", "mini", "tiny-no", "mini", "--layouts", str(tmp_path / "l"), "--out",
+          str(tmp_path / "o.csv")], "tiny-no"),
+        (["batch", "optimize", "mini", "mini", "--layouts", str(tmp_path / "l"), "--out",
+          str(tmp_path / "o.csv")], "mini: the scene is given twice"),
     ]
     for args, word in cases:
         r = shoha(*args, timeout=120)
@@ -218,6 +222,7 @@ def test_batch_input_errors(tmp_path, saves):
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and word in lines[0], lines
         assert not (tmp_path / "o.csv").exists() or (tmp_path / "o.csv").stat().st_size == 0
+        assert not (tmp_path / "l").exists()  # the layouts' folder is made only for a run
 
 
 def test_another_reference_is_refused(tmp_path, saves):

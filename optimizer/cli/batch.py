@@ -125,6 +125,9 @@ def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None
     seed_list = parse_seeds(seeds)
     for s in scenes:
         load_scene(s)  # a bad scene name is bad usage
+    if len(set(scenes)) != len(scenes):
+        twice = next(s for i, s in enumerate(scenes) if s in scenes[:i])
+        raise InputError(f"{twice}: the scene is given twice")
     folder.mkdir(parents=True, exist_ok=True)
     items = [Item(f"{s}:seed{n}", {"scene": s, "seed": n, "time_limit": time_limit,
                                     "layouts": str(folder)}) for s in scenes for n in seed_list]
