@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from geometry.blocks import plain_number
-from geometry.errors import InputError
+from geometry.errors import InputError, one_line
 
 #: Times an item is run before a worker crash is recorded as its error.
 MAX_ATTEMPTS = 3
@@ -209,7 +209,7 @@ def _detect(data: Any, path: str) -> str:
 def _error_row(row: dict[str, Any], exc: Exception, start: float) -> dict[str, Any]:
     """The row of an item that failed: bad input in its one line, anything else as internal."""
     if isinstance(exc, InputError):
-        error = str(exc).splitlines()[0] if str(exc) else "bad input"
+        error = one_line(str(exc)) if str(exc) else "bad input"
     else:
         error = f"internal error: {type(exc).__name__}: {exc}"
     return {**row, "status": "error", "error": error, "seconds": time.perf_counter() - start}

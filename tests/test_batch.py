@@ -341,3 +341,12 @@ def test_200_saves_on_a_local_cluster_resume_and_match_the_pool(cluster, tmp_pat
     summary = json.loads(r.stdout)
     assert summary["skipped"] == len(before) and summary["ran"] == items - len(before)
     assert rows_of(out) == rows_of(pool)
+
+
+def test_an_error_row_keeps_a_name_with_a_newline_whole():
+    """A save named ``new\\nline.json``: its error row showed only ``bs/new``."""
+    from geometry.errors import InputError
+    from optimizer.batch import _error_row
+
+    row = _error_row({"item": "x"}, InputError("bs/new\nline.json: malformed JSON at line 1 column 2"), 0.0)
+    assert row["error"] == "bs/new\\nline.json: malformed JSON at line 1 column 2"

@@ -17,7 +17,7 @@ import sys
 
 import click
 
-from geometry.errors import InputError
+from geometry.errors import InputError, one_line
 
 from .batch import batch
 from .block import block
@@ -42,12 +42,6 @@ def cli() -> None:
 for _command in (block, scene, convert, porosity, check, settle_cmd, optimize_cmd, score_cmd, batch,
                  render_cmd, serve_cmd):
     cli.add_command(_command)
-
-
-def one_line(message: str) -> str:
-    """``message`` as one line of printable text: a newline or other control character in a
-    name the user gave (a file called ``"a\\nb"``) is shown escaped, not cut or sent raw."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
 
 
 def main(argv: list[str] | None = None) -> int:
