@@ -197,7 +197,10 @@ def least_distances(scene: Scene, random: int = RANDOM, yaws: int = YAWS, refine
     # A few points still bare, spread over them, and the furthest, each searched from its
     # best orientations; every orientation found is measured at every point.
     spread = bare[np.linspace(0, len(bare) - 1, min(len(bare), REFINE_POINTS)).astype(int)]
-    searched = np.union1d(spread, [np.argmax(least)]) if refine else np.array([], dtype=int)
+    # Where no orientation tried fits in the zone, every distance is infinite and a local
+    # search has nothing to descend (Nelder-Mead warned on its infinite values).
+    fits = bool(np.isfinite(least).any())
+    searched = np.union1d(spread, [np.argmax(least)]) if refine and fits else np.array([], dtype=int)
     each = np.array([nearest(points[searched], polygons) for polygons in swept])
     for column, i in enumerate(searched):
         def at_point(v: np.ndarray, p: np.ndarray = points[i:i + 1]) -> float:
