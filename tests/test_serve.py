@@ -528,6 +528,30 @@ def test_any_host_but_localhost_needs_a_token():
     assert len(r.stderr.strip().splitlines()) == 1 and "--token" in r.stderr
 
 
+def test_a_long_whole_save_does_not_hold_the_other_requests(service, http):
+    """50 blocks in one place take seconds to measure (84 took 30 s, and held every other
+    request as long): while such a save is measured the service answers, and the session
+    still shows its layout before it; then the save is laid whole."""
+    import threading
+
+    sid = new_session(http)
+    heap = {"blocks": [{**BLOCK, "position": {"x": 0.0, "y": 1.0, "z": 3.0}}] * 50}
+    answer: dict[str, Any] = {}
+
+    def put_heap() -> None:
+        with httpx.Client(base_url=service.url, timeout=300.0) as other:
+            answer["heap"] = other.put(f"/sessions/{sid}/layout", json=heap)
+
+    worker = threading.Thread(target=put_heap)
+    worker.start()
+    threading.Event().wait(0.5)  # the small body is in; its measuring takes seconds
+    assert http.get("/healthz").status_code == 200
+    assert http.get(f"/sessions/{sid}").json()["blocks"] == 0  # answered before the save is laid
+    worker.join()
+    assert answer["heap"].status_code == 200 and answer["heap"].json()["blocks"] == 50
+    assert http.get(f"/sessions/{sid}").json()["blocks"] == 50
+
+
 def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():
     """Found by the server only after it said it was serving, with exit status 3."""
     import socket

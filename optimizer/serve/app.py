@@ -39,6 +39,7 @@ from typing import Any
 from urllib.parse import parse_qs, quote, urlsplit
 
 from starlette.applications import Starlette
+from starlette.concurrency import run_in_threadpool
 from starlette.middleware import Middleware
 from starlette.middleware.cors import CORSMiddleware
 from starlette.requests import Request
@@ -196,7 +197,11 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
         return service.delete_block(sid(request), request.path_params["block"])
 
     async def put_layout(request: Request) -> Any:
-        return service.put_layout(sid(request), await read_json(request))
+        # Measured in a worker thread: a whole save can take seconds, and the event loop
+        # answers the other sessions meanwhile. The session itself changes here, on the loop.
+        body = await read_json(request)
+        prepared = await run_in_threadpool(service.prepare_layout, sid(request), body)
+        return service.apply_layout(sid(request), prepared)
 
     async def get_layout(request: Request) -> Any:
         return service.get_layout(sid(request))

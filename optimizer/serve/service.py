@@ -118,6 +118,15 @@ def load_reference(path: str, scenes: dict[str, Served]) -> tuple[Served, Layout
     return served, layout
 
 
+@dataclass(frozen=True)
+class PreparedLayout:
+    """A whole save as a live layout, ready to replace a session's (``Service.prepare_layout``)."""
+
+    live: LiveLayout
+    elapsed_s: float | None
+    started: float
+
+
 class Service:
     """The endpoints of ``shoha serve`` (docs/serve.md), without the web layer.
 
@@ -277,6 +286,12 @@ class Service:
         return self._changed(session, change, started)
 
     def put_layout(self, sid: str, body: Any) -> dict[str, Any]:
+        return self.apply_layout(sid, self.prepare_layout(sid, body))
+
+    def prepare_layout(self, sid: str, body: Any) -> PreparedLayout:
+        """A whole save checked and measured, apart from its session: the part of a layout PUT
+        that may run off the event loop (84 blocks in one place took 30 s, and held every
+        other request as long). Nothing of the session changes."""
         started = time.perf_counter()
         session = self._session(sid)
         parsed = layout_body(body, session.scene, session.origin, self.catalogue)
@@ -286,8 +301,14 @@ class Service:
         # As a save's time is read for shoha score: its elapsed_s where it has one, else the latest time_s.
         times = [b.time_s for _, b in parsed.blocks if b.time_s is not None]
         elapsed = parsed.elapsed_s if parsed.elapsed_s is not None else max(times, default=None)
-        change = session.replace(live, elapsed)
-        return self._changed(session, change, started)
+        return PreparedLayout(live, elapsed, started)
+
+    def apply_layout(self, sid: str, prepared: PreparedLayout) -> dict[str, Any]:
+        """The session's layout replaced by a prepared one (:meth:`prepare_layout`); the last
+        whole save wins, as it would in order."""
+        session = self._session(sid)
+        change = session.replace(prepared.live, prepared.elapsed_s)
+        return self._changed(session, change, prepared.started)
 
     def get_layout(self, sid: str) -> dict[str, Any]:
         return self._session(sid).layout()
