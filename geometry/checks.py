@@ -122,8 +122,7 @@ def check_not_crowded_across(groups: Sequence[tuple[Block, np.ndarray, Sequence[
     for t, (block, positions, ids) in enumerate(groups):
         positions = np.asarray(positions).reshape(-1, 3)
         reach = 2.0 * block.bounding_radius
-        # The group's own count is bounded by its own check, and so is each smaller group's:
-        # no query counts more than a few dozen.
+        # Counts, not lists: each group passed its own check, so none is heaped in one place.
         filled = sum(smaller.volume * trees[u].query_ball_point(positions, reach, return_length=True)
                      for u, (smaller, _, _) in enumerate(groups[:t + 1])) - block.volume
         room = 4.0 / 3.0 * math.pi * (3.0 * block.bounding_radius) ** 3

@@ -211,15 +211,12 @@ def refuse_crowded(placements: list[Placement], base_dir: str | None, source: st
     check_type_count(kinds, source)
     # Grouped by shape, not by name: tetrapod:2 and tetrapod:02 are one block.
     blocks = {kind: get_block(kind, base_dir) for kind in kinds}
-
-    def shape(kind: str) -> tuple[float, float]:
-        return round(blocks[kind].volume, 9), round(blocks[kind].bounding_radius, 9)
-
+    shape = {kind: (round(b.volume, 9), round(b.bounding_radius, 9)) for kind, b in blocks.items()}
     shapes: dict[tuple[float, float], tuple[Any, list[Placement]]] = {}
     for kind in kinds:
-        shapes.setdefault(shape(kind), (blocks[kind], []))
+        shapes.setdefault(shape[kind], (blocks[kind], []))
     for p in placements:
-        shapes[shape(p.type)][1].append(p)
+        shapes[shape[p.type]][1].append(p)
     groups = [(block, np.array([p.pose.position for p in group]).reshape(-1, 3), [p.id for p in group])
               for block, group in shapes.values()]
     for group in groups:
