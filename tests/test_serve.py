@@ -531,7 +531,8 @@ def test_any_host_but_localhost_needs_a_token():
 def test_a_long_whole_save_does_not_hold_the_other_requests(service, http):
     """50 blocks in one place take seconds to measure (84 took 30 s, and held every other
     request as long): while such a save is measured the service answers, and the session
-    still shows its layout before it; then the save is laid whole."""
+    still shows its layout before it; then the save is laid whole, and a block sent after it
+    on top."""
     import threading
 
     sid = new_session(http)
@@ -547,9 +548,13 @@ def test_a_long_whole_save_does_not_hold_the_other_requests(service, http):
     threading.Event().wait(0.5)  # the small body is in; its measuring takes seconds
     assert http.get("/healthz").status_code == 200
     assert http.get(f"/sessions/{sid}").json()["blocks"] == 0  # answered before the save is laid
+    # A block laid meanwhile waits for the save and goes on top of it, as sent (it was answered
+    # at once, on the layout before the save, and then wiped by it).
+    assert put(http, sid, 999, BLOCK)["blocks"] == 51
     worker.join()
     assert answer["heap"].status_code == 200 and answer["heap"].json()["blocks"] == 50
-    assert http.get(f"/sessions/{sid}").json()["blocks"] == 50
+    ids = [b["id"] for b in http.get(f"/sessions/{sid}/layout").json()["blocks"]]
+    assert len(ids) == 51 and 999 in ids
 
 
 def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():

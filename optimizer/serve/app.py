@@ -34,6 +34,7 @@ import hmac
 import json
 import logging
 import time
+import weakref
 from collections.abc import AsyncIterator, Awaitable, Callable
 from typing import Any
 from urllib.parse import parse_qs, quote, urlsplit
@@ -189,19 +190,33 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
         service.end_session(sid(request))
         return None
 
+    # A session's changes in the order they came: a whole save is measured in a worker thread
+    # (it can take seconds; the loop answers reads and other sessions meanwhile), and a block
+    # laid during it waits, then goes on top (applied first, it was wiped by the save).
+    changing: weakref.WeakValueDictionary[str, asyncio.Lock] = weakref.WeakValueDictionary()
+
+    def change_lock(request: Request) -> asyncio.Lock:
+        key = sid(request)
+        lock = changing.get(key)
+        if lock is None:
+            lock = changing[key] = asyncio.Lock()
+        return lock
+
     async def put_block(request: Request) -> Any:
         body = await read_json(request)
-        return service.put_block(sid(request), request.path_params["block"], body)
+        async with change_lock(request):
+            return service.put_block(sid(request), request.path_params["block"], body)
 
     async def delete_block(request: Request) -> Any:
-        return service.delete_block(sid(request), request.path_params["block"])
+        async with change_lock(request):
+            return service.delete_block(sid(request), request.path_params["block"])
 
     async def put_layout(request: Request) -> Any:
-        # Measured in a worker thread: a whole save can take seconds, and the event loop
-        # answers the other sessions meanwhile. The session itself changes here, on the loop.
         body = await read_json(request)
-        prepared = await run_in_threadpool(service.prepare_layout, sid(request), body)
-        return service.apply_layout(sid(request), prepared)
+        async with change_lock(request):
+            measure = service.prepare_layout(sid(request), body)
+            prepared = await run_in_threadpool(measure)
+            return service.apply_layout(sid(request), prepared)
 
     async def get_layout(request: Request) -> Any:
         return service.get_layout(sid(request))

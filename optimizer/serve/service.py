@@ -18,6 +18,7 @@ import asyncio
 import json
 import logging
 import time
+from collections.abc import Callable
 from concurrent.futures import Future
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -286,26 +287,32 @@ class Service:
         return self._changed(session, change, started)
 
     def put_layout(self, sid: str, body: Any) -> dict[str, Any]:
-        return self.apply_layout(sid, self.prepare_layout(sid, body))
+        return self.apply_layout(sid, self.prepare_layout(sid, body)())
 
-    def prepare_layout(self, sid: str, body: Any) -> PreparedLayout:
-        """A whole save checked and measured, apart from its session: the part of a layout PUT
-        that may run off the event loop (84 blocks in one place took 30 s, and held every
-        other request as long). Nothing of the session changes."""
+    def prepare_layout(self, sid: str, body: Any) -> Callable[[], PreparedLayout]:
+        """A whole save's measuring, to run off the event loop: 84 blocks in one place took
+        30 s, and held every other request as long. The session is looked up here, on the
+        loop; the function returned reads only its scene and origin, and changes nothing."""
         started = time.perf_counter()
         session = self._session(sid)
-        parsed = layout_body(body, session.scene, session.origin, self.catalogue)
-        live = LiveLayout(session.scene)
-        for key, b in parsed.blocks:
-            live.put(key, b.type, b.block, b.pose, b.time_s)
-        # As a save's time is read for shoha score: its elapsed_s where it has one, else the latest time_s.
-        times = [b.time_s for _, b in parsed.blocks if b.time_s is not None]
-        elapsed = parsed.elapsed_s if parsed.elapsed_s is not None else max(times, default=None)
-        return PreparedLayout(live, elapsed, started)
+        scene, origin = session.scene, session.origin
+
+        def measure() -> PreparedLayout:
+            parsed = layout_body(body, scene, origin, self.catalogue)
+            live = LiveLayout(scene)
+            for key, b in parsed.blocks:
+                live.put(key, b.type, b.block, b.pose, b.time_s)
+            # As a save's time is read for shoha score: its elapsed_s where it has one, else the
+            # latest time_s.
+            times = [b.time_s for _, b in parsed.blocks if b.time_s is not None]
+            elapsed = parsed.elapsed_s if parsed.elapsed_s is not None else max(times, default=None)
+            return PreparedLayout(live, elapsed, started)
+
+        return measure
 
     def apply_layout(self, sid: str, prepared: PreparedLayout) -> dict[str, Any]:
-        """The session's layout replaced by a prepared one (:meth:`prepare_layout`); the last
-        whole save wins, as it would in order."""
+        """The session's layout replaced by a measured save (:meth:`prepare_layout`). The
+        app lets no other change of the session in between."""
         session = self._session(sid)
         change = session.replace(prepared.live, prepared.elapsed_s)
         return self._changed(session, change, prepared.started)
