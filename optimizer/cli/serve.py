@@ -77,20 +77,27 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
 
 def _check_listen(host: str, port: int) -> None:
     """Refuse a host that does not resolve, or a port taken, before anything is loaded or said
-    (the server found it only after saying it was serving, and exited with status 3)."""
+    (the server found it only after saying it was serving, and exited with status 3).
+
+    Each address is tried as asyncio's ``create_server`` binds it, which the server uses:
+    every passive address of the host (an empty host is every interface), IPv6 ones alone.
+    """
     import socket
 
     try:
-        family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+        infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
     except (socket.gaierror, UnicodeError) as exc:
         raise InputError(f"--host {host}: the name does not resolve ({exc})") from None
-    with socket.socket(family, kind, proto) as probe:
-        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server's own socket
-        try:
-            probe.bind(address)
-        except OSError as exc:
-            why = exc.strerror or exc
-            raise InputError(f"--port {port}: cannot listen on {host}:{port} ({why})") from None
+    for family, kind, proto, _, address in dict.fromkeys(infos):
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6:
+                probe.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            try:
+                probe.bind(address)
+            except OSError as exc:
+                why = exc.strerror or exc
+                raise InputError(f"--port {port}: cannot listen on {host}:{port} ({why})") from None
 
 
 def _open_when_up(host: str, port: int, token: str | None) -> None:
