@@ -30,7 +30,7 @@ from optimizer.batch import (
     run_batch,
     score_task,
 )
-from tests.conftest import shoha
+from tests.conftest import ROOT, shoha
 from tests.perturb import trainee_saves
 
 REFERENCE = Path(__file__).parent / "data" / "mini-reference.json"
@@ -195,6 +195,9 @@ def test_dask_matches_the_pool_and_survives_a_killed_worker(cluster, saves, pool
     assert rows_of(out) == pool_rows
 
 
+TINY = ROOT / "tests" / "data" / "tiny.toml"
+
+
 def test_batch_input_errors(tmp_path, saves):
     base = ["batch", "score", str(saves), "--reference", str(REFERENCE)]
     cases = [
@@ -214,7 +217,9 @@ def test_batch_input_errors(tmp_path, saves):
         (["batch", "optimize", "mini", "tiny-no", "mini", "--layouts", str(tmp_path / "l"), "--out",
           str(tmp_path / "o.csv")], "tiny-no"),
         (["batch", "optimize", "mini", "mini", "--layouts", str(tmp_path / "l"), "--out",
-          str(tmp_path / "o.csv")], "mini: the scene is given twice"),
+          str(tmp_path / "o.csv")], "mini: its layouts would be written over those of mini"),
+        (["batch", "optimize", str(TINY), f"{TINY.parent}/../data/{TINY.name}", "--layouts",
+          str(tmp_path / "l"), "--out", str(tmp_path / "o.csv")], "tiny-seedN.json"),
     ]
     for args, word in cases:
         r = shoha(*args, timeout=120)

@@ -125,9 +125,13 @@ def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None
     seed_list = parse_seeds(seeds)
     for s in scenes:
         load_scene(s)  # a bad scene name is bad usage
-    if len(set(scenes)) != len(scenes):
-        twice = next(s for i, s in enumerate(scenes) if s in scenes[:i])
-        raise InputError(f"{twice}: the scene is given twice")
+    # Each run writes SCENE-seedN.json by the scene's stem: two scenes of one stem (a.toml and
+    # x/a.toml, or one scene named twice) would write each other's layouts.
+    stems: dict[str, str] = {}
+    for s in scenes:
+        if (other := stems.setdefault(Path(s).stem, s)) != s or scenes.count(s) > 1:
+            raise InputError(f"{s}: its layouts would be written over those of {other} "
+                             f"({Path(s).stem}-seedN.json); give each scene once, with its own name")
     folder.mkdir(parents=True, exist_ok=True)
     items = [Item(f"{s}:seed{n}", {"scene": s, "seed": n, "time_limit": time_limit,
                                     "layouts": str(folder)}) for s in scenes for n in seed_list]
