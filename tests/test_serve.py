@@ -528,6 +528,38 @@ def test_any_host_but_localhost_needs_a_token():
     assert len(r.stderr.strip().splitlines()) == 1 and "--token" in r.stderr
 
 
+@pytest.mark.parametrize("host", ["127.0.0.1", ""])
+def test_the_port_check_agrees_with_the_servers_own_bind(host):
+    """The probe before serving binds as asyncio's create_server does: an empty host (every
+    interface) is one the server accepts, and so is a free port (the first probe said the
+    empty host did not resolve)."""
+    import asyncio
+    import socket
+
+    from geometry.errors import InputError
+    from optimizer.cli.serve import _check_listen
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+
+    async def server_binds() -> bool:
+        try:
+            server = await asyncio.get_running_loop().create_server(asyncio.Protocol, host=host, port=port)
+        except OSError:
+            return False
+        server.close()
+        await server.wait_closed()
+        return True
+
+    try:
+        _check_listen(host, port)
+        probe = True
+    except InputError:
+        probe = False
+    assert probe == asyncio.run(server_binds()) is True
+
+
 def test_a_long_whole_save_does_not_hold_the_other_requests(service, http):
     """50 blocks in one place take seconds to measure (84 took 30 s, and held every other
     request as long): while such a save is measured the service answers, and the session
