@@ -402,9 +402,10 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
         # The bound below then holds to the coarsest spacing, and the exact distances decide.
         # And no finer than MAX_BLOCK_SAMPLES over its surface (the halving leaves about four
         # samples to each spacing squared of it).
-        spacing = {id(block): max(step, block.height / CELLS_PER_H,
-                                  math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
-                   for _, block, _ in placed}
+        kinds = {id(block): block for _, block, _ in placed}
+        spacing = {k: max(step, block.height / CELLS_PER_H,
+                          math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
+                   for k, block in kinds.items()}
         step = max(spacing.values())
         clouds = []
         for _, block, pose in placed:
@@ -422,12 +423,12 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
         # Exact where the bound leaves the verdict open, and near the largest distance.
         todo = ((upper - step <= limit) & (upper > limit)) | (upper >= upper.max() - step) | exact
         centres = cKDTree(np.array([pose.position for _, _, pose in placed]))
-        radius = max(block.bounding_radius for _, block, _ in placed)
+        radius = max(block.bounding_radius for block in kinds.values())
         # A point inside a block is at 0, however far the block's surface: the design surface
         # inside a box 2 m thick was called bare 0.96 m from its sides. Only a point no further
         # from a sample than the deepest any block's inside lies can be one.
         deep = np.flatnonzero(~todo & (upper > limit)
-                              & (upper <= max(block.depth for _, block, _ in placed) + step))
+                              & (upper <= max(block.depth for block in kinds.values()) + step))
         dist[deep[_inside_any(pts[deep], placed, centres, radius)]] = 0.0
         points = np.flatnonzero(todo)
         dist[points] = np.inf

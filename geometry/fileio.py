@@ -33,11 +33,7 @@ def check_replaceable(path: str | os.PathLike) -> None:
         st = os.stat(path)
     except OSError:
         return  # missing, or unreachable: the write itself says so
-    if stat.S_ISDIR(st.st_mode):
-        raise InputError(f"{path}: is a folder, not a file")
-    if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{path}: not a regular file (a device, pipe or socket); "
-                         "output files are written whole, in place of what is there")
+    _refuse_other_kinds(path, st, "; output files are written whole, in place of what is there")
 
 
 def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
@@ -90,11 +86,17 @@ def regular_file(path: Path) -> os.stat_result:
         raise InputError(f"{path}: file not found") from None
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    _refuse_other_kinds(path, st)
+    return st
+
+
+def _refuse_other_kinds(path: str | os.PathLike, st: os.stat_result, why: str = "") -> None:
+    """InputError unless ``st`` (``path``'s status) is a regular file's: a folder, a device,
+    a pipe or a socket is neither read nor written over."""
     if stat.S_ISDIR(st.st_mode):
         raise InputError(f"{path}: is a folder, not a file")
     if not stat.S_ISREG(st.st_mode):
-        raise InputError(f"{path}: not a regular file (a device, pipe or socket)")
-    return st
+        raise InputError(f"{path}: not a regular file (a device, pipe or socket){why}")
 
 
 def read_json(path: str | os.PathLike) -> Any:

@@ -202,13 +202,13 @@ def check_type_count(kinds: Any, source: str) -> None:
 
 def refuse_crowded(placements: list[Placement], base_dir: str | None, source: str) -> None:
     """Raise InputError for blocks one inside another by the dozen (``checks.check_not_crowded``,
-    for each block shape, then ``check_not_crowded_across`` the shapes), or for more than
-    ``MAX_BLOCK_TYPES`` block types: every check of such a file grows with the square of its
-    count (300 copies of one pose took ``shoha check`` 13 s, and 100 000 ran it out of memory)."""
+    for each block shape, then ``check_not_crowded_across`` the shapes): every check of such a
+    file grows with the square of its count (300 copies of one pose took ``shoha check`` 13 s,
+    and 100 000 ran it out of memory). Callers count the types first (:func:`check_type_count`),
+    before any is built."""
     from .checks import check_not_crowded, check_not_crowded_across  # they pull in FCL and manifold3d
 
-    kinds = list(dict.fromkeys(p.type for p in placements))
-    check_type_count(kinds, source)
+    kinds = list(dict.fromkeys(p.type for p in placements))  # counted by the caller (check_type_count)
     # Grouped by shape, not by name: tetrapod:2 and tetrapod:02 are one block.
     blocks = {kind: get_block(kind, base_dir) for kind in kinds}
     shape = {kind: (round(b.volume, 9), round(b.bounding_radius, 9)) for kind, b in blocks.items()}

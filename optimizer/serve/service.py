@@ -286,9 +286,6 @@ class Service:
         change = session.remove(block_id(key_text))
         return self._changed(session, change, started)
 
-    def put_layout(self, sid: str, body: Any) -> dict[str, Any]:
-        return self.apply_layout(sid, self.prepare_layout(sid, body)())
-
     def prepare_layout(self, sid: str, body: Any) -> Callable[[], PreparedLayout]:
         """A whole save's measuring, to run off the event loop: 84 blocks in one place took
         30 s, and held every other request as long. The session is looked up here, on the
