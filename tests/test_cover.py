@@ -118,3 +118,26 @@ def test_a_block_is_tried_where_its_grid_reaches_bare_area(monkeypatch):
     assert abs(moved.porosity.percent - scene.target_porosity) <= 1.0
     report = check_layout(scene, moved.placed())
     assert not report.collisions and not report.out_of_tolerance
+
+
+def test_blocks_past_the_first_group_are_tried_when_it_has_no_move(mini_reference, monkeypatch):
+    """Where none of the ``BLOCKS_TRIED`` free blocks with the most bare area in reach has a move
+    that covers better, the next ones are tried, and the move is made by one of them (only the
+    first group was tried until 2026-11-27, and the moves ended with time left). The first
+    group is refused here; every other block is measured for real."""
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 1)
+    real, asked = cover._best_for, []
+
+    def first_group_has_none(problem_, build_, key, *args):
+        asked.append(key)
+        return None if len(asked) <= cover.BLOCKS_TRIED else real(problem_, build_, key, *args)
+
+    monkeypatch.setattr(cover, "_best_for", first_group_has_none)
+    before = coverage(scene, build.placed())
+    moved, after, stats = cover.cover_moves(problem(scene), build, before)
+    assert stats.moved == 1 and after.better_than(before)
+    mover = next(k for k in build.order if k not in moved.poses
+                 or not np.array_equal(moved.poses[k].position, build.poses[k].position))
+    assert mover in asked[cover.BLOCKS_TRIED:]
+    assert len(asked) <= 2 * cover.BLOCKS_TRIED  # the best of the first group that has a move
