@@ -269,6 +269,7 @@ def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
         return real(problem_, strategies, *args, **kwargs)
 
     monkeypatch.setattr(api, "_attempt", spy)
+    monkeypatch.setattr(api, "COVER_ATTEMPTS", 1)  # the one is enough to see
     api.optimize(tiny, seed=1, time_limit=120,
                  strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
     assert seen[0] == [("BeamSearch", False, False), ("Annealing", None, None)]
