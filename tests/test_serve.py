@@ -224,7 +224,9 @@ def test_a_replan_takes_over_when_no_reference_block_fits(tmp_path):
 
     short = tmp_path / "short.json"
     write_layout(Layout("mini", read_layout(REFERENCE).blocks[:10]), short)
-    with Served("--reference", str(short), "--reference-time-limit", "0") as served, \
+    # A re-plan of 15 s, not the default minute: it only has to find the next few blocks.
+    with Served("--reference", str(short), "--reference-time-limit", "0",
+                "--replan-time-limit", "15") as served, \
             httpx.Client(base_url=served.url, timeout=60.0) as http:
         sid = new_session(http, frame="world")
         for i in range(10):
@@ -587,6 +589,13 @@ def test_a_long_whole_save_does_not_hold_the_other_requests(service, http):
     assert answer["heap"].status_code == 200 and answer["heap"].json()["blocks"] == 50
     ids = [b["id"] for b in http.get(f"/sessions/{sid}/layout").json()["blocks"]]
     assert len(ids) == 51 and 999 in ids
+
+
+@pytest.mark.parametrize("seconds", ["0", "-1", "nan", "inf"])
+def test_a_replan_time_limit_not_above_0_is_refused(seconds):
+    r = shoha("serve", "--replan-time-limit", seconds, timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert f"--replan-time-limit {float(seconds)}: must be more than 0 seconds" in r.stderr
 
 
 def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():

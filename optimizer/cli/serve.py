@@ -27,6 +27,9 @@ LOCAL_HOST = "127.0.0.1"
 @click.option("--reference-time-limit", type=float, default=None, metavar="S",
               help="Seconds of the background optimize of a scene with no --reference "
                    "(default: optimize's own); 0 computes none.")
+@click.option("--replan-time-limit", type=float, default=None, metavar="S",
+              help="Seconds of a re-plan around a trainee's blocks, for a hint where no reference "
+                   "block fits (default: 60).")
 @click.option("--max-sessions", type=click.IntRange(1, 10_000), default=64, show_default=True,
               help="Sessions kept at once.")
 @click.option("--idle-timeout", type=float, default=3600.0, show_default=True, metavar="S",
@@ -34,7 +37,8 @@ LOCAL_HOST = "127.0.0.1"
 @click.option("--open", "open_view", is_flag=True,
               help="Open the live view (/view: the session started last) in the default browser.")
 def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: str, port: int,
-              token: str | None, cors: tuple[str, ...], reference_time_limit: float | None, max_sessions: int,
+              token: str | None, cors: tuple[str, ...], reference_time_limit: float | None,
+              replan_time_limit: float | None, max_sessions: int,
               idle_timeout: float, open_view: bool) -> None:
     """Serve live checks of a trainee's blocks over HTTP and WebSocket.
 
@@ -51,6 +55,8 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
     if reference_time_limit is not None and (not math.isfinite(reference_time_limit)
                                              or reference_time_limit < 0):
         raise InputError(f"--reference-time-limit {reference_time_limit}: must be 0 or more seconds")
+    if replan_time_limit is not None and (not math.isfinite(replan_time_limit) or replan_time_limit <= 0):
+        raise InputError(f"--replan-time-limit {replan_time_limit}: must be more than 0 seconds")
     if not math.isfinite(idle_timeout) or idle_timeout <= 0:
         raise InputError(f"--idle-timeout {idle_timeout}: must be more than 0 seconds")
     for origin in cors:
@@ -66,7 +72,7 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
 
     scenes = [load_scene(name) for name in builtin_scenes()] + [load_scene(path) for path in scene_files]
     service = Service(scenes, list(references), reference_seconds=reference_time_limit,
-                      max_sessions=max_sessions, idle_s=idle_timeout)
+                      replan_seconds=replan_time_limit, max_sessions=max_sessions, idle_s=idle_timeout)
     logging.basicConfig(level=logging.WARNING, format="shoha serve: %(message)s")
     url = f"http://{host}:{port}"
     click.echo(f"shoha serve: {len(service.scenes)} scenes on {url}; the live view is {url}/view", err=True)

@@ -141,18 +141,22 @@ class Service:
         Time limit of the background optimize of a scene without a
         reference: None for optimize's own default, 0 to compute none (the
         state's ``reference`` stays null).
+    replan_seconds : float or None
+        Time limit of a re-plan around a trainee's blocks (a hint where no
+        reference block fits); None for ``REPLAN_SECONDS``.
     max_sessions, idle_s : see :class:`SessionStore`.
     """
 
     def __init__(self, scenes: list[Scene], references: list[str] = (), *,
-                 reference_seconds: float | None = None, max_sessions: int = MAX_SESSIONS,
-                 idle_s: float = IDLE_SECONDS):
+                 reference_seconds: float | None = None, replan_seconds: float | None = None,
+                 max_sessions: int = MAX_SESSIONS, idle_s: float = IDLE_SECONDS):
         self.scenes: dict[str, Served] = {s.name: Served(s) for s in scenes}
         for path in references:
             served, layout = load_reference(path, self.scenes)
             served.set_reference(layout, "file")
         self.catalogue = Catalogue.of(s.scene for s in self.scenes.values())
         self.reference_seconds = reference_seconds
+        self.replan_seconds = REPLAN_SECONDS if replan_seconds is None else replan_seconds
         self.store = SessionStore(max_sessions, idle_s)
         self.workers: Workers | None = None
         self._replans: dict[str, tuple[int, Future[dict[str, Any]] | None, list[PlanBlock]]] = {}
@@ -386,7 +390,7 @@ class Service:
                 return self._hint(session, found, "replan", started)
         if future is None or (future.done() and version != session.version):
             assert self.workers is not None
-            future = self.workers.submit_replan(session.scene.source, session.layout(), REPLAN_SECONDS)
+            future = self.workers.submit_replan(session.scene.source, session.layout(), self.replan_seconds)
             self._replans[session.id] = (session.version, future, plan)
             # The pool calls back on its own thread: hand the result to the event loop's.
             loop = asyncio.get_running_loop()
