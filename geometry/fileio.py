@@ -66,6 +66,12 @@ def reject_constant(name: str) -> Any:
 MAX_INT_DIGITS = 309
 
 
+def ascii_digits(text: str) -> bool:
+    """Whether ``text`` is one or more of 0-9 (``str.isdigit`` and ``int`` also take other
+    scripts' digits: ``int("٣")`` is 3)."""
+    return text.isascii() and text.isdigit()
+
+
 def bounded_int(text: str) -> int:
     """A JSON integer, refused where no float can hold it (``10**400`` would pass every
     type check as an int and then fail in float arithmetic)."""

@@ -63,6 +63,9 @@ def test_a_hanging_the_block_has_not_is_an_error(shake, cube):
         hanging_of(cube, "crown", 0.0)
     with pytest.raises(ValueError, match="no hanging"):
         hanging_of(cube, "rest-2", 0.0)
+    with pytest.raises(ValueError, match="no hanging"):  # int() reads "١" (Arabic-Indic one) as 1
+        hanging_of(shake, "rest-\u0661", 0.0)
+    hanging_of(shake, "rest-1", 0.0)
 
 
 @pytest.mark.parametrize("name", ["shake-4t", "tetrapod:2", "box:2x1x0.8", "random hulls"])

@@ -38,6 +38,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from geometry.blocks import LEG_DIRECTIONS, Block
+from geometry.fileio import ascii_digits
 from geometry.pose import axis_angle_quat, quat_multiply
 from geometry.samples import random_quaternion
 
@@ -102,8 +103,9 @@ def spread_yaws(block: Block, families: Sequence[str], per: int) -> list[tuple[s
 
 
 def _rest_index(block: Block, family: str) -> int:
-    if family.startswith("rest-") and family[5:].isdigit() and 0 < int(family[5:]) <= len(block.rest_poses):
-        return int(family[5:]) - 1
+    number = family[5:]
+    if family.startswith("rest-") and ascii_digits(number) and 0 < int(number) <= len(block.rest_poses):
+        return int(number) - 1
     raise ValueError(f"{block.name}: no hanging {family!r} (it has {', '.join(families(block))})")
 
 

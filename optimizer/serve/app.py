@@ -49,6 +49,8 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from geometry.fileio import ascii_digits
+
 from .bodies import MAX_BODY_BYTES, BodyError, parse_json
 from .openapi import schema
 from .service import Service
@@ -128,7 +130,7 @@ async def read_json(request: Request) -> Any:
     if kind != "application/json":
         raise BodyError(415, "send the body as JSON with Content-Type: application/json")
     length = request.headers.get("content-length", "")
-    if length.isascii() and length.isdigit() and int(length) > MAX_BODY_BYTES:
+    if ascii_digits(length) and int(length) > MAX_BODY_BYTES:
         raise BodyError(413, f"body is {length} bytes, more than {MAX_BODY_BYTES}")
     chunks, size = [], 0
     async for chunk in request.stream():

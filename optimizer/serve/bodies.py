@@ -30,7 +30,7 @@ import numpy as np
 
 from geometry.blocks import Block, get_block
 from geometry.errors import InputError
-from geometry.fileio import bounded_int, reject_constant
+from geometry.fileio import ascii_digits, bounded_int, reject_constant
 from geometry.layout import FORMAT, MAX_COORDINATE, layout_from_dict, normalised_quaternion
 from geometry.pose import Pose
 from geometry.scene import Scene
@@ -169,8 +169,7 @@ def time_value(value: Any, where: str) -> float | None:
 
 def block_id(text: str) -> int:
     """A block id from a URL path: a non-negative integer, as in layout files."""
-    # ASCII digits only: str.isdigit and int take ٣ (Arabic-Indic three) as 3.
-    if not (text.isascii() and text.isdigit()) or len(text) > 16 or int(text) > MAX_BLOCK_ID:
+    if not ascii_digits(text) or len(text) > 16 or int(text) > MAX_BLOCK_ID:
         raise BodyError(422, f"block id {text[:40]!r} must be an integer from 0 to {MAX_BLOCK_ID}")
     return int(text)
 
