@@ -635,9 +635,10 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
     """:func:`covered_attempt`, and again while the layout kept still misses a coverage aim and
     the last attempt's time is left, up to ``COVER_ATTEMPTS`` in all.
 
-    Each draws its pattern origins anew from the random stream. Around the rows, one origin
-    reaches the count and another does not, and the time left after one attempt was spent on
-    nothing (``mini`` seed 2, 2026-11-27: done at 49 s of 120 with 6.2 % bare). Returns the
+    Each draws its pattern origins anew from the random stream, and around the rows one origin
+    reaches the count where another does not. Without it the time left after one attempt was
+    spent on nothing: in a trial of another toe-row hanging (not kept), ``mini`` seed 2 was done
+    at 49 s of its 120 with 6.2 % bare (2026-11-27). Returns the
     index of the attempt to keep, and the words of the attempt kept (else of the last one
     made), with how many were made where more than one.
     """
