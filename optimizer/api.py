@@ -373,7 +373,9 @@ def optimize(
         mound's surface bare (``geometry.coverage``'s aims), and its time is
         left, try once more with rows along the toes laid first
         (:func:`covered_attempt`); keep that layout if it reaches the count and
-        porosity too and covers better (not with ``keep``). Then, with
+        porosity too and covers better (not with ``keep``), and if the layout
+        kept still leaves it bare and that attempt's time is left, once more
+        (:func:`covered_attempts`). Then, with
         ``settle_layout``, move blocks that carry nothing to bare areas
         (:func:`cover_repair`; kept blocks never move).
     """
@@ -642,28 +644,32 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
     index of the attempt to keep, and the words of the attempt kept (else of the last one
     made), with how many were made where more than one.
     """
-    made, note, kept_note, took = 0, None, None, None
+    made, note, kept_note, took, without = 0, None, None, None, None
+    plain = tried[chosen]
     while made < COVER_ATTEMPTS:
         before, was, t0 = len(tried), chosen, problem.now()
         chosen, words = covered_attempt(problem, strategies, tried, chosen, rng, settle_layout, end,
-                                        needs=took)
+                                        needs=took, without=without)
         took = problem.now() - t0  # its trim too
         if len(tried) == before:  # none made: covered, or no time left for one
-            note = note if made else words
+            if not made:
+                note = words
             break
         made += 1
         note = words
         if chosen != was:
             kept_note = words
+        # A second attempt kept says how bare the layout without rows was, not the first one with rows.
+        without = plain.coverage.bare_share_percent if plain.coverage is not None else None
     note = kept_note if kept_note is not None else note
     if made > 1 and note is not None:
-        note += f" ({made} attempts with toe rows first were made)"
+        note = f"{made} attempts with toe rows first were made: {note}"
     return chosen, note
 
 
 def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
                     rng: np.random.Generator, settle_layout: bool, end: float,
-                    needs: float | None = None) -> tuple[int, str | None]:
+                    needs: float | None = None, without: float | None = None) -> tuple[int, str | None]:
     """One more attempt, with rows along the toes first, where the chosen one leaves the mound bare.
 
     Only when the chosen attempt reaches its count and porosity and misses
@@ -682,8 +688,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     window: one that reaches its count, stands and covers better is then
     trimmed (:func:`trim_repair`), each move kept first only while it meets
     as many coverage aims as before, then while it stays better covered.
-    ``needs`` is the time the attempt is expected to take (by default the
-    chosen attempt's; :func:`covered_attempts` gives the last one's).
+    ``needs`` is the time the attempt is expected to take (at least the
+    chosen attempt's; :func:`covered_attempts` gives the last one's), and
+    ``without`` the bare share (percent) of the layout without rows, where
+    the chosen one has them.
     Appends the attempt to ``tried`` and returns the index of the one to
     keep, the new one if it reaches its count and porosity too and covers
     better, with what came of it in words (None where the layout covers).
@@ -697,12 +705,13 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     scene = problem.scene
     if clock() + coverage_reserve(scene) > problem.deadline:
         return chosen, "no time was left for an attempt with toe rows first"
-    best.coverage = problem.coverage(best.build.placed())
+    if best.coverage is None:  # known already where an attempt before measured it
+        best.coverage = problem.coverage(best.build.placed())
     if best.coverage is None:
         return chosen, "no time was left to measure the coverage"
     if best.coverage.aims_met() == 2:
         return chosen, None
-    needs = best.seconds if needs is None else needs
+    needs = max(best.seconds, needs or 0.0)
     if clock() + needs > problem.deadline:
         return chosen, f"no time was left for an attempt with toe rows first (about {needs:.0f} s)"
     again = [ToeRows(accept=raised_check)] + [
@@ -761,8 +770,8 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             return chosen, f"{what} reached the count, but no time was left to measure its coverage"
     if not new.coverage.better_than(best.coverage):
         return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
-    return len(tried) - 1, (f"the layout is that of {what}{trimmed_note}; without them "
-                            f"{best.coverage.bare_share_percent:.1f}% was bare")
+    bare = best.coverage.bare_share_percent if without is None else without
+    return len(tried) - 1, f"the layout is that of {what}{trimmed_note}; without them {bare:.1f}% was bare"
 
 
 def _trim_words(phase: dict[str, Any] | None, adopted: bool) -> str:

@@ -123,15 +123,18 @@ def test_a_block_is_tried_where_its_grid_reaches_bare_area(monkeypatch):
 def test_blocks_past_the_first_group_are_tried_when_it_has_no_move(mini_reference, monkeypatch):
     """Where none of the ``BLOCKS_TRIED`` free blocks with the most bare area in reach has a move
     that covers better, the next ones are tried, and the move is made by one of them (only the
-    first group was tried until 2026-11-27, and the moves ended with time left). The first
-    group is refused here; every other block is measured for real."""
+    first group was tried until 2026-11-27, and the moves ended with time left). In the first
+    group, one block has no move and the others one that covers no better than the layout
+    does; every other block is measured for real."""
     scene, build = mini_reference
     monkeypatch.setattr(cover, "MOVES", 1)
     real, asked = cover._best_for, []
 
-    def first_group_has_none(problem_, build_, key, *args):
+    def first_group_has_none(problem_, build_, key, report, *args):
         asked.append(key)
-        return None if len(asked) <= cover.BLOCKS_TRIED else real(problem_, build_, key, *args)
+        if len(asked) > cover.BLOCKS_TRIED:
+            return real(problem_, build_, key, report, *args)
+        return None if len(asked) == 1 else (report, None)  # no better: not a move
 
     monkeypatch.setattr(cover, "_best_for", first_group_has_none)
     before = coverage(scene, build.placed())
@@ -141,3 +144,17 @@ def test_blocks_past_the_first_group_are_tried_when_it_has_no_move(mini_referenc
                  or not np.array_equal(moved.poses[k].position, build.poses[k].position))
     assert mover in asked[cover.BLOCKS_TRIED:]
     assert len(asked) <= 2 * cover.BLOCKS_TRIED  # the best of the first group that has a move
+
+
+def test_no_more_than_groups_of_blocks_are_tried_for_a_move(mini_reference, monkeypatch):
+    """Where no block has a move, ``GROUPS`` groups of ``BLOCKS_TRIED`` are tried, not every
+    free block: the work a move does is bounded by the constants, not by the clock."""
+    scene, build = mini_reference
+    asked = []
+
+    def none(problem_, build_, key, *args):
+        asked.append(key)
+
+    monkeypatch.setattr(cover, "_best_for", none)
+    moved, _, stats = cover.cover_moves(problem(scene), build, coverage(scene, build.placed()))
+    assert stats.moved == 0 and len(asked) == cover.GROUPS * cover.BLOCKS_TRIED < len(build.free_keys())

@@ -236,6 +236,7 @@ def test_a_replan_takes_over_when_no_reference_block_fits(tmp_path):
         deadline = time.monotonic() + 300
         hint = http.get(f"/sessions/{sid}/hint").json()
         assert hint["source"] == "replan" and hint["status"] == "pending", hint
+        assert hint["message"].endswith("(at most 15 s)"), hint  # the limit given reaches it
         while hint["status"] == "pending" and time.monotonic() < deadline:
             time.sleep(1.0)
             hint = http.get(f"/sessions/{sid}/hint").json()
@@ -705,3 +706,30 @@ def test_no_body_makes_the_service_fail(service, http, scratch_session, body, wh
     if where == "/sessions" and r.status_code == 201:
         http.delete(f"/sessions/{r.json()['session']}")
     assert service.alive()
+
+
+def test_a_finished_replan_with_no_block_that_fits_is_unavailable_not_pending(tmp_path):
+    """Once the re-plan of the blocks as laid is done and none of its blocks fits, the hint says
+    so; it answered "pending" for good before (no other re-plan starts until the session changes).
+    The re-plan here is the laid blocks themselves: it holds nothing more to lay."""
+    from concurrent.futures import Future
+
+    from geometry.layout import write_layout
+    from geometry.scene import load_scene
+    from optimizer.serve.service import Service
+
+    first = Layout("mini", read_layout(REFERENCE).blocks[:10])
+    short = tmp_path / "short.json"
+    write_layout(first, short)
+    service = Service([load_scene("mini")], [str(short)], reference_seconds=0)
+    sid = service.create_session({"scene": "mini", "frame": "world"})["session"]
+    for p in first.blocks:
+        service.put_block(sid, str(p.id), {"position": list(p.pose.position),
+                                           "quaternion": list(p.pose.quaternion)})
+    session = service._session(sid)
+    done: Future = Future()
+    done.set_result(json.loads(first.dumps()))
+    service._replans[sid] = (session.version, done, [])
+    hint = service.hint(sid)
+    assert hint["status"] == "unavailable" and hint["source"] == "replan", hint
+    assert "no block of the re-plan" in hint["message"]

@@ -14,8 +14,8 @@ neighbours (or comes to rest valid: ``physics.settle_in``), the porosity
 stays within ``TARGET_POINTS`` of the target, and the exact coverage is
 better (``CoverageReport.better_than``). The moves are greedy, one at a
 time: the best of the first ``BLOCKS_TRIED`` blocks (most bare area in
-reach first), or if none of them has a move, of the next as many, and so
-on. The caller settles the whole layout again and keeps the moves only if
+reach first), or if none of them has a move, of the next as many, up to
+``GROUPS`` groups. The caller settles the whole layout again and keeps the moves only if
 it stands.
 
 How many moves, blocks and candidates there are is fixed, so a seed gives
@@ -44,8 +44,9 @@ from .shapes import ShapeCache
 #: Moves at most.
 MOVES = 12
 #: Blocks tried together for each move: the free ones with the most bare area within reach of
-#: their grid, then the next as many while none of them has a move.
+#: their grid, then the next as many while none of them has a move, ``GROUPS`` at most.
 BLOCKS_TRIED = 4
+GROUPS = 3
 #: Candidates per block let go (the ones that cover the most bare area by the bound).
 SETTLE_TOP = 6
 #: Yaws per hanging, spread over its symmetry period.
@@ -130,16 +131,16 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
         ranked = sorted((k for k in free if weight[k] > 0), key=lambda k: -weight[k])
         best: tuple[CoverageReport, int, Candidate] | None = None
         # The blocks in groups of BLOCKS_TRIED, most bare area first: the best move of the first
-        # group that has one. (Only the first group was tried until 2026-11-27: on ``mini`` seed 3
-        # the moves ended at 5.2 % bare with a third of the time left.)
-        for group in range(0, len(ranked), BLOCKS_TRIED):
+        # group that has one, of the first GROUPS. (Only the first group was tried until
+        # 2026-11-27: on ``mini`` seed 3 the moves ended at 5.2 % bare with a third of the time left.)
+        for group in range(0, min(len(ranked), GROUPS * BLOCKS_TRIED), BLOCKS_TRIED):
             for key in ranked[group:group + BLOCKS_TRIED]:
+                if problem.time_left() <= 0:
+                    break
                 found = _best_for(problem, build, key, report, hung, offsets, stats)
                 if found is not None and found[0].better_than(report) and (
                         best is None or found[0].better_than(best[0])):
                     best = (found[0], key, found[1])
-                if problem.time_left() <= 0:
-                    break
             if best is not None or problem.time_left() <= 0:
                 break
         if best is None:

@@ -29,6 +29,7 @@ from geometry.layout import Layout, layout_from_dict, read_layout
 from geometry.porosity import porosity
 from geometry.scene import Scene
 
+from . import REPLAN_SECONDS
 from .bodies import (
     BodyError,
     Catalogue,
@@ -46,8 +47,6 @@ from .workers import Workers, reference_cache
 log = logging.getLogger("shoha.serve")
 
 
-#: Seconds a re-plan around a trainee's blocks may take.
-REPLAN_SECONDS = 60.0
 
 
 def scene_info(scene: Scene) -> dict[str, Any]:
@@ -384,6 +383,17 @@ class Service:
             return {"block": None, "source": "replan", "status": "unavailable",
                     "message": f"the re-plan failed: {str(future.exception()).splitlines()[0][:200]}",
                     "seconds": time.perf_counter() - started}
+        if future is not None and future.done() and version == session.version:
+            # The re-plan of the blocks as laid now is done (its plan read here: the pool's
+            # callback may not have run yet). If none of its blocks fits, another would give the
+            # same: say so, rather than "pending" for good.
+            self._replanned(session.id, future)
+            found = first_fitting(session.scene, session.live, self._replans[session.id][2])
+            if found is not None:
+                return self._hint(session, found, "replan", started)
+            return {"block": None, "source": "replan", "status": "unavailable",
+                    "message": "no block of the re-plan around the laid blocks fits",
+                    "seconds": time.perf_counter() - started}
         if plan:
             found = first_fitting(session.scene, session.live, plan)
             if found is not None:
@@ -397,7 +407,8 @@ class Service:
             future.add_done_callback(
                 lambda f, sid=session.id: loop.call_soon_threadsafe(self._replanned, sid, f))
         return {"block": None, "source": "replan", "status": "pending",
-                "message": "no reference block fits; a re-plan around the laid blocks is running",
+                "message": "no reference block fits; a re-plan around the laid blocks is running "
+                           f"(at most {self.replan_seconds:g} s)",
                 "seconds": time.perf_counter() - started}
 
     def _replanned(self, sid: str, future: Future[dict[str, Any]]) -> None:
