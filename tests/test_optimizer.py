@@ -437,7 +437,7 @@ def test_a_covered_attempt_that_falls_short_is_not_kept(tiny, light_tiny_1, plai
     # Short in its search ("placed 21 of 25 blocks") or in its settle ("... but 21 of 25 blocks stood").
     assert f"{attempts['blocks'][covered - 1]} of {tiny.required_blocks} blocks" in said
     assert "so it was not kept" in said
-    assert f"({COVER_ATTEMPTS} attempts with toe rows first were made)" in said
+    assert f"; {COVER_ATTEMPTS} attempts with toe rows first were made: an attempt" in said
     assert said.endswith("can reach: shoha scene info SCENE --floor)")
     assert ("to bare areas took the bare share from" in said) == (moves["moved"] > 0 and moves["stood"])
     assert "toe rows" not in plain.summary()

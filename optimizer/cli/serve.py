@@ -8,7 +8,6 @@ import threading
 import click
 
 from geometry.errors import InputError
-from optimizer.serve import REPLAN_SECONDS
 
 #: The one host that needs no --token (docs/contract.md, "shoha serve").
 LOCAL_HOST = "127.0.0.1"
@@ -30,7 +29,7 @@ LOCAL_HOST = "127.0.0.1"
                    "(default: optimize's own); 0 computes none.")
 @click.option("--replan-time-limit", type=float, default=None, metavar="S",
               help="Seconds of a re-plan around a trainee's blocks, for a hint where no reference "
-                   f"block fits (default: {REPLAN_SECONDS:g}).")
+                   "block fits (default: a minute).")
 @click.option("--max-sessions", type=click.IntRange(1, 10_000), default=64, show_default=True,
               help="Sessions kept at once.")
 @click.option("--idle-timeout", type=float, default=3600.0, show_default=True, metavar="S",

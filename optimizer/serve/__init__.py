@@ -9,7 +9,3 @@
 * :mod:`.service`: every endpoint, apart from HTTP;
 * :mod:`.app`: the web layer (Starlette on uvicorn); :mod:`.openapi`, :mod:`.view`.
 """
-
-#: Seconds a re-plan around a trainee's blocks may take, unless ``--replan-time-limit`` says
-#: otherwise (here, not in :mod:`.service`, so that the CLI's help names it without loading that).
-REPLAN_SECONDS = 60.0

@@ -29,7 +29,6 @@ from geometry.layout import Layout, layout_from_dict, read_layout
 from geometry.porosity import porosity
 from geometry.scene import Scene
 
-from . import REPLAN_SECONDS
 from .bodies import (
     BodyError,
     Catalogue,
@@ -45,6 +44,10 @@ from .session import IDLE_SECONDS, MAX_SESSIONS, QUEUE_EVENTS, Session, SessionS
 from .workers import Workers, reference_cache
 
 log = logging.getLogger("shoha.serve")
+
+#: Seconds a re-plan around a trainee's blocks may take, unless ``--replan-time-limit`` says
+#: otherwise (the CLI's help says "a minute": it does not import this module).
+REPLAN_SECONDS = 60.0
 
 
 
