@@ -386,21 +386,19 @@ class Service:
             return {"block": None, "source": "replan", "status": "unavailable",
                     "message": f"the re-plan failed: {str(future.exception()).splitlines()[0][:200]}",
                     "seconds": time.perf_counter() - started}
-        if future is not None and future.done() and version == session.version:
-            # The re-plan of the blocks as laid now is done (its plan read here: the pool's
-            # callback may not have run yet). If none of its blocks fits, another would give the
-            # same: say so, rather than "pending" for good.
+        current = future is not None and future.done() and version == session.version
+        if current:
+            # The re-plan of the blocks as laid now is done: its plan read here (the pool's
+            # callback may not have run yet).
             self._replanned(session.id, future)
-            found = first_fitting(session.scene, session.live, self._replans[session.id][2])
-            if found is not None:
-                return self._hint(session, found, "replan", started)
+            plan = self._replans[session.id][2]
+        found = first_fitting(session.scene, session.live, plan) if plan else None
+        if found is not None:
+            return self._hint(session, found, "replan", started)
+        if current:  # another re-plan would give the same: say so, not "pending" for good
             return {"block": None, "source": "replan", "status": "unavailable",
                     "message": "no block of the re-plan around the laid blocks fits",
                     "seconds": time.perf_counter() - started}
-        if plan:
-            found = first_fitting(session.scene, session.live, plan)
-            if found is not None:
-                return self._hint(session, found, "replan", started)
         if future is None or (future.done() and version != session.version):
             assert self.workers is not None
             future = self.workers.submit_replan(session.scene.source, session.layout(), self.replan_seconds)
