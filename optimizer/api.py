@@ -240,6 +240,7 @@ class OptimizeResult:
             # Why the count can end below what the search showed on the way.
             text += (f"\nthe search placed {self.searched} blocks; the confirming settle took out those "
                      f"that did not stand, with what rested on them, and {self.blocks} stood in the end")
+        text += self._not_standing()
         if self.shortfall:
             text += f"\n{self.shortfall}"
         if self.coverage is not None:
@@ -264,6 +265,24 @@ class OptimizeResult:
             text += (f"\nkept {k['blocks']} blocks where they were"
                      + (f"; of those, {'; '.join(faults)}" if faults else ""))
         return text
+
+    def _not_standing(self) -> str:
+        """Where the settle's verdict fails on blocks not kept: a line that says why they are in.
+
+        The confirming settle takes out what does not stand while a settle of what is left
+        fits in the limit (``search.physics.confirm``), so the layout written fails it only
+        where the time ran out first, or where the engine named no block."""
+        if self.stable is not False:
+            return ""
+        kept = len(self.kept["unstable"]) if self.kept is not None else 0
+        failed = len(self.settle.get("unstable", [])) - kept
+        if failed > 0:
+            return (f"\n{failed} {'block' if failed == 1 else 'blocks'} did not stand when the layout was "
+                    "settled, and the time limit left no room to take them out and settle what is left "
+                    "again: a longer --time-limit may give a layout that stands")
+        if kept:
+            return ""  # the kept blocks' own line names them
+        return "\nthe settle did not confirm that the layout stands (the physics engine named no block)"
 
     def _not_covered(self) -> str:
         """A line on the coverage aims the layout misses, and why, or nothing if it meets them."""

@@ -623,6 +623,28 @@ def test_summary_says_when_porosity_misses_the_target():
     assert lines[1].startswith("the search placed") and lines[2].startswith("the mound is not covered")
 
 
+def test_summary_says_why_a_layout_written_does_not_stand():
+    """A verdict that fails on blocks not kept (no time was left to take them out) gets its own line."""
+    from optimizer.api import OptimizeResult
+
+    short = OptimizeResult(layout=None, porosity_percent=68.0, blocks=34, required_blocks=64,
+                           target_porosity_percent=40.0, collisions=0, out_of_tolerance=0, stable=False,
+                           seconds=7.1, settle={"stable": False, "unstable": [13, 14, 17]})
+    said = short.summary().splitlines()
+    assert "NOT stable" in said[0]
+    assert said[1].startswith("3 blocks did not stand when the layout was settled, and the time limit left")
+    stood = replace(short, stable=True, settle={"stable": True, "unstable": []})
+    assert "did not stand" not in stood.summary()
+    one = replace(short, settle={"stable": False, "unstable": [2]}).summary()
+    assert "\n1 block did not stand" in one
+    # Only kept blocks fail: their own line names them, and none is said to be the time's.
+    kept = replace(short, settle={"stable": False, "unstable": [2]},
+                   kept={"blocks": 30, "colliding": [], "out_of_tolerance": [], "unstable": [2]})
+    assert "did not stand" not in kept.summary() and "1 do not stand: 2" in kept.summary()
+    # A diverged settle names no block.
+    assert "named no block" in replace(short, settle={"stable": False, "unstable": []}).summary()
+
+
 def test_time_limit_is_honoured_and_result_valid(tiny, monkeypatch):
     """4 s of a clock that advances with the work (tests/clock.py): the run keeps them, within 2 s."""
     clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
