@@ -163,16 +163,9 @@ def last_rows(stem: str) -> list[dict]:
         return list(csv.DictReader(f))
 
 
-def last_meta(stem: str) -> str | None:
-    """Where the last results file's rows came from (its commit and date), for the rows kept from it."""
-    path = BENCH / "results" / f"{stem}.json"
-    if not path.is_file():
-        return None
-    meta = json.loads(path.read_text())
-    machine = meta.get("machine", {})
-    before = meta.get("params", {}).get("reused_from")
-    here = f"{machine.get('commit', '?')} on {machine.get('date', '?')[:10]}"
-    return here if not before or before == here else f"{here}; {before}"
+def run_label(machine: dict) -> str:
+    """Which run wrote a row: the commit it measured and the day, as each row's ``run`` column has it."""
+    return f"{machine.get('commit', '?')} on {machine.get('date', '?')[:10]}"
 
 
 def _limit(method: str, scene) -> float:
@@ -251,8 +244,7 @@ def main() -> None:
         stem = "generality"
     write_turned_mesh(BENCH / "scenes" / "shake-turned.stl")
     old = old_tree(args.old_commit) if "old" in args.methods else None
-    earlier = last_meta(stem) if args.update else None
-    run = Run(stem, {"reused_from": earlier, "scenes": scenes, "seeds": args.seeds,
+    run = Run(stem, {"scenes": scenes, "seeds": args.seeds,
                      "old_seeds": args.old_seeds, "methods": args.methods, "update": args.update,
                      "old_commit": args.old_commit if "old" in args.methods else None})
     with tempfile.TemporaryDirectory() as tmp:
@@ -265,6 +257,7 @@ def main() -> None:
             except Exception as exc:  # a layout today's reader refuses is a result, not the run's end
                 row = {"method": method, "scene": scene, "seed": seed, "error": f"judge: {exc}"[:200],
                        "ok": False}
+            row["run"] = run_label(run.start)  # a row kept by a later --update keeps its own
             print(json.dumps(row), flush=True)
             return row
 
@@ -272,8 +265,6 @@ def main() -> None:
         todo = [(m, s, n) for m in args.methods for s in scenes for n in seeds[m]]
         ran = {(m, s) for m, s, _ in todo}
         reused = [r for r in last_rows(stem) if (r["method"], r["scene"]) not in ran] if args.update else []
-        if not reused:
-            run.params["reused_from"] = None  # every row is this run's
         with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
             rows = list(pool.map(lambda job: one(*job), todo))
         order = {(m, s): i for i, (m, s) in enumerate((m, s) for m in ("new", "old") for s in SCENES)}

@@ -108,6 +108,24 @@ def table(columns: str, cells: list[list[Any]]) -> str:
 # --- values --------------------------------------------------------------------------------
 
 
+def generality_runs(gr: list[dict[str, str]], machine: dict) -> str:
+    """Which runs wrote a generality table's rows (each row's ``run``: commit and day), and the
+    machine of the last one. ``generality.py --update`` runs some scenes again and keeps the
+    other rows as they were, so a table can hold rows of several runs."""
+    last = f"{machine.get('commit', '?')} on {machine.get('date', '?')[:10]}"
+    runs: dict[str, dict[str, list[str]]] = {}
+    for r in gr:
+        scenes = runs.setdefault(r.get("run") or last, {}).setdefault(r["method"], [])
+        if r["scene"] not in scenes:
+            scenes.append(r["scene"])
+    parts = []
+    for label, methods in runs.items():
+        what = "; ".join(f"the *{m}* rows of {', '.join(scenes)}" for m, scenes in methods.items())
+        parts.append(f"{what} at shoha {label}")
+    return ("; ".join(parts) + f"; {machine.get('cores', '?')} cores, 1-minute load "
+            f"{(machine.get('load_average') or ['?'])[0]} at the start of the last run")
+
+
 def generality_table(gr: list[dict[str, str]]) -> str:
     """One line per method and scene: the seeds' spread of every figure issue 24 accepts on."""
     cells = []
@@ -484,13 +502,7 @@ def values() -> dict[str, Any]:
             v[f"{key}_table"] = generality_table(gr)
             v[f"{key}_readme"] = generality_readme(gr, floors)
             v[f"{key}_seeds"] = ", ".join(dict.fromkeys(r["seed"] for r in gr))
-            machine = (meta(stem) or {}).get("machine", {})
-            earlier = (meta(stem) or {}).get("params", {}).get("reused_from")
-            v[f"{key}_when"] = (f"shoha {machine.get('commit', '?')} on {machine.get('date', '?')[:10]}, "
-                                f"{machine.get('cores', '?')} cores, 1-minute load "
-                                f"{(machine.get('load_average') or ['?'])[0]} at the start"
-                                + (f", the rows it did not run (other scenes, or the old method) "
-                                   f"kept from {earlier}" if earlier else ""))
+            v[f"{key}_when"] = generality_runs(gr, (meta(stem) or {}).get("machine", {}))
             v[f"{key}_rows"] = gr
 
     kp = rows("keep")
@@ -612,7 +624,7 @@ README_TRIMESH = (
 )
 
 README_GENERALITY = (
-    "**`shoha optimize` on the engineer's scenes** (`benchmarks/generality.py` at {generality_when}; "
+    "**`shoha optimize` on the engineer's scenes** (`benchmarks/generality.py`: {generality_when}; "
     "issue 24's table: seeds {generality_seeds}, default limit; *old* is the method before that issue, "
     "*new* today's; spans are over the seeds; *all items* is the count, valid, porosity within 1 point, "
     "bare share at most 5 % with the largest bare distance at most H, and the limit + 2 s, at once; "
@@ -625,7 +637,7 @@ README_GENERALITY = (
 
 README_HELD_OUT = (
     "Scenes held out of all tuning (`benchmarks/scenes/held-out/`, written after the method was frozen; "
-    "`generality.py --held-out` at {held_out_when}):\n\n{held_out_readme}"
+    "`generality.py --held-out`: {held_out_when}):\n\n{held_out_readme}"
 )
 
 
