@@ -297,6 +297,17 @@ def _vertical_symmetry(points: np.ndarray, scale: float) -> int:
 # --- registry -----------------------------------------------------------------
 
 
+def mesh_path(name: str, base_dir: str | os.PathLike | None = None) -> Path | None:
+    """The file a ``mesh:PATH`` block type names, a relative one resolved against ``base_dir``
+    as :func:`get_block` resolves it; None for any other type."""
+    if not name.startswith("mesh:"):
+        return None
+    path = Path(name[5:]).expanduser()
+    if not path.is_absolute() and base_dir is not None:
+        path = Path(base_dir) / path
+    return path.resolve()
+
+
 def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
     """The block a type name stands for.
 
@@ -322,11 +333,9 @@ def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
         a, b, c = _parse_floats(name, name[4:].replace("x", ","), 3)
         check_aspect((a, b, c), f"block type {name!r}")
         return box_block(a, b, c)
-    if name.startswith("mesh:"):
-        path = Path(name[5:]).expanduser()
-        if not path.is_absolute() and base_dir is not None:
-            path = Path(base_dir) / path
-        return mesh_block(str(path.resolve()), name)
+    path = mesh_path(name, base_dir)
+    if path is not None:
+        return mesh_block(str(path), name)
     raise InputError(
         f"unknown block type {name!r}: use shake-4t, tetrapod[:H], box:AxBxC or mesh:PATH"
     )

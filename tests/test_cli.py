@@ -221,6 +221,32 @@ def test_a_save_is_not_converted_over_itself(tmp_path):
     assert save.read_text() == text
 
 
+def test_no_command_writes_over_its_own_input(tmp_path):
+    """``--out`` naming a file the command reads (the scene, the block's mesh, the layout) is
+    refused before any work, and that file is left as it was: writing it would destroy it."""
+    mesh = tmp_path / "m" / "block.stl"
+    mesh.parent.mkdir()
+    assert shoha("block", "export", "box:1.6x1.6x1.6", "--out", str(mesh)).returncode == 0
+    scene = tmp_path / "own.toml"
+    scene.write_text('block = "mesh:m/block.stl"\n[design]\ncrest_width_m = 4.0\nheight_m = 3.0\n'
+                     'slope_rise_run = [3.0, 4.0]\nlength_m = 4.0\n')
+    layout = tmp_path / "layout.json"
+    layout.write_text((ROOT / "tests" / "data" / "mini-reference.json").read_text())
+    before = {p: p.read_bytes() for p in (mesh, scene, layout)}
+    (tmp_path / "sub").mkdir()
+    cases = [
+        (("optimize", str(scene), "--out", str(scene), "--time-limit", "5"), "is the scene file"),
+        (("optimize", str(scene), "--out", str(tmp_path / "sub" / ".." / "own.toml"), "--time-limit", "5"),
+         "is the scene file"),
+        (("optimize", str(scene), "--out", str(mesh), "--time-limit", "5"), "is the block's mesh"),
+        (("block", "export", f"mesh:{mesh}", "--out", str(mesh)), "is the block's own mesh"),
+        (("settle", str(layout), "--out", str(layout)), "is the layout settled"),
+    ]
+    for args, said in cases:
+        _assert_bad(shoha(*args), said)
+    assert {p: p.read_bytes() for p in before} == before
+
+
 def test_bad_save_writes_nothing(tmp_path):
     save = tmp_path / "save.json"
     save.write_text(json.dumps({"blocks": [{"position": {"x": 1, "y": 2, "z": 3},

@@ -8,7 +8,7 @@ import click
 
 from geometry.errors import InputError
 
-from .common import Group, check_out, emit, json_option
+from .common import Group, check_not_input, check_out, emit, json_option
 
 
 @click.group("block", cls=Group)
@@ -44,9 +44,10 @@ def block_info(name: str, as_json: bool) -> None:
 @json_option
 def block_export(name: str, out: str, as_json: bool) -> None:
     """Write a block's mesh in its block frame."""
-    from geometry.blocks import get_block
+    from geometry.blocks import get_block, mesh_path
 
     path = check_out(out, (".stl", ".obj", ".glb"))
+    check_not_input(path, [(mesh_path(name, Path.cwd()), "block's own mesh")])
     get_block(name, Path.cwd()).export(path)
     emit({"path": str(path)}, as_json, f"wrote {path}")
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable
+import os
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,20 @@ def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
         raise InputError(f"{path}: folder {parent} does not exist")
     check_replaceable(p)
     return p
+
+
+def check_not_input(path: Path, inputs: Sequence[tuple[str | os.PathLike | None, str]]) -> None:
+    """Refuse an output path that is one of the command's own input files (``inputs``: each
+    path, or None, with what it is): writing there would destroy what was read."""
+    for given, what in inputs:
+        if given is None:
+            continue
+        try:
+            same = os.path.samefile(Path(given).expanduser(), path)
+        except OSError:  # one of them does not exist: no clash
+            continue
+        if same:
+            raise InputError(f"{path}: is the {what}; write the output elsewhere")
 
 
 def parse_origin(text: str) -> tuple[float, float, float]:

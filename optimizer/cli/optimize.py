@@ -6,13 +6,20 @@ The only place where strategy names map to strategy classes.
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import click
 
 from geometry.errors import InputError
 
-from .common import check_out, check_time_limit, emit, json_option, parse_origin, save_options
+from .common import (
+    check_not_input,
+    check_out,
+    check_time_limit,
+    emit,
+    json_option,
+    parse_origin,
+    save_options,
+)
 
 #: The share of the time limit (or of the least default limit) that a mesh block's first cut
 #: into convex pieces may take; the rest is left to place blocks with it.
@@ -72,7 +79,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     how to read it.
     """
     started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
-    from geometry.blocks import cut_by
+    from geometry.blocks import cut_by, mesh_path
     from geometry.layout import MAX_ID, write_layout
     from geometry.scene import load_scene
     from optimizer.api import MIN_DEFAULT_LIMIT, check_keep, optimize
@@ -84,10 +91,10 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     # A mesh block's first cut into convex pieces may take at most this share of the limit.
     with cut_by(started + CUT_SHARE * (time_limit or MIN_DEFAULT_LIMIT)):
         scene = load_scene(scene_name)
+    check_not_input(path, [(scene_name, "scene file"), (mesh_path(scene.block_type, scene.base_dir),
+                                                        "block's mesh"), (keep_path, "--keep file")])
     keep = None
     if keep_path is not None:
-        if path.resolve() == Path(keep_path).resolve():
-            raise InputError(f"--out {out}: is the --keep file; write the completed layout elsewhere")
         partial, partial_scene = load_save(keep_path, source, scene.reference(), scene, block_type,
                                            parse_origin(origin))
         check_same_scene(partial_scene, scene, keep_path, against="the optimized")

@@ -15,7 +15,7 @@ import click
 
 from geometry.errors import InputError
 
-from .common import check_out, emit, json_option
+from .common import check_not_input, check_out, emit, json_option
 
 #: Runs longer than this many wall-clock seconds show a progress line on stderr.
 PROGRESS_AFTER = 1.0
@@ -98,6 +98,8 @@ def settle_cmd(layout_path: str, scene_name: str | None, seconds: float, out: st
     if not 0 < seconds <= MAX_SECONDS:
         raise InputError(f"--seconds {seconds}: must be more than 0 and at most {MAX_SECONDS:g}")
     path = check_out(out, (".json",)) if out is not None else None
+    if path is not None:
+        check_not_input(path, [(layout_path, "layout settled")])
     layout = read_layout(layout_path)
     scene = layout.load_scene(scene_name)
     placed = layout.placed()
