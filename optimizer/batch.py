@@ -374,6 +374,11 @@ class RowFile:
     def read(self) -> list[dict[str, Any]]:
         """Rows already in the file, dropping a torn last line left by a killed run.
 
+        The file is cut only once what comes before that line reads as this
+        batch's output; a torn first line is cut only if it is the start of what
+        this batch writes first (the CSV header, or a JSON Lines row). Any other
+        file, one line of notes without its newline too, is left as it is.
+
         Raises
         ------
         InputError
@@ -382,13 +387,28 @@ class RowFile:
         if not self.path.exists():
             return []
         data = self.path.read_bytes()
-        if data and not data.endswith(b"\n"):
+        cut = data.rfind(b"\n") + 1 if data and not data.endswith(b"\n") else len(data)
+        rows = self._rows(data[:cut])
+        if cut < len(data):
             # A row is written in one write(); a line without its newline is
-            # the remains of a run killed mid-write (or a full disk). Cut it.
-            cut = data.rfind(b"\n") + 1
+            # the remains of a run killed mid-write (or a full disk).
+            first = self._first_write()
+            if not cut and not first.startswith(data[:len(first)]):
+                raise InputError(f"{self.path}: is not the output of a batch like this one; use a new --out")
             with open(self.path, "r+b") as fh:
                 fh.truncate(cut)
-            data = data[:cut]
+        return rows
+
+    def _first_write(self) -> bytes:
+        """How the file this batch writes begins: its CSV header, or the start of a JSON Lines row."""
+        if self.format == "csv":
+            buf = io.StringIO()
+            csv.writer(buf, lineterminator="\n").writerow(self.columns)
+            return buf.getvalue().encode()
+        return json.dumps({self.columns[0]: ""})[:len(self.columns[0]) + 4].encode()
+
+    def _rows(self, data: bytes) -> list[dict[str, Any]]:
+        """The rows of whole lines, refused unless they are this batch's output."""
         text = data.decode("utf-8", errors="replace")
         if not text:
             return []

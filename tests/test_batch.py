@@ -267,6 +267,20 @@ def test_row_file_cuts_a_torn_last_line_and_refuses_other_files(tmp_path):
             RowFile(lines, SCORE_COLUMNS).read()
     with pytest.raises(InputError):
         RowFile(tmp_path / "rows.txt", SCORE_COLUMNS)
+    # One line that is not this batch's, without its newline, is no torn row: it stays (it was cut).
+    for name, text in (("notes.jsonl", b"my important notes"), ("notes.csv", b"foo bar"),
+                       ("notes.csv", b"\x00\xff\xfe"), ("header.csv", b"item,status\nx")):
+        other = tmp_path / name
+        other.write_bytes(text)
+        with pytest.raises(InputError):
+            RowFile(other, SCORE_COLUMNS).read()
+        assert other.read_bytes() == text
+    # A first write cut short is cut, as any torn line is.
+    for name, text in (("torn.csv", b"item,status,er"), ("torn.jsonl", b'{"item": "a", "sta'),
+                       ("t.jsonl", b'{"it')):
+        torn = tmp_path / name
+        torn.write_bytes(text)
+        assert RowFile(torn, SCORE_COLUMNS).read() == [] and torn.read_bytes() == b""
 
 
 @pytest.mark.parametrize("text, seeds", [("0-3", [0, 1, 2, 3]), ("1,4,7", [1, 4, 7]),
