@@ -195,3 +195,8 @@ def test_cli_block_tune_tunes_caches_and_reports(tmp_path):
     assert json.loads(run("block", "tune", "shake-4t", "--json").stdout)["source"] == "built in"
     bad = run("block", "tune", "box:1x1", "--json")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
+    # NaN is no time: it was let through and the tuner blamed the block.
+    for seconds in ("nan", "0.5", "1e999", "abc"):
+        bad = run("block", "tune", "box:1x1x0.5", "--seconds", seconds)
+        assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
+        assert "--seconds" in bad.stderr and "lattice" not in bad.stderr, bad.stderr

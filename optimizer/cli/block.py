@@ -52,9 +52,27 @@ def block_export(name: str, out: str, as_json: bool) -> None:
     emit({"path": str(path)}, as_json, f"wrote {path}")
 
 
+class _Seconds(click.ParamType):
+    """The tuner's time, 1 to 7200 s; click's FloatRange lets NaN through (every comparison is false)."""
+
+    name = "seconds"
+
+    def convert(self, value, param, ctx):  # noqa: ANN001 - click's signature
+        try:
+            seconds = float(value)
+        except (TypeError, ValueError):
+            self.fail(f"{value!r} is not a number", param, ctx)
+        if not 1.0 <= seconds <= 7200.0:
+            self.fail(f"{value!r} is not in 1 to 7200 s", param, ctx)
+        return seconds
+
+
+SECONDS = _Seconds()
+
+
 @block.command("tune")
 @click.argument("name")
-@click.option("--seconds", type=click.FloatRange(min=1.0, max=7200.0), default=180.0, show_default=True,
+@click.option("--seconds", type=SECONDS, default=180.0, show_default=True,
               help="Time the tuner may take.")
 @click.option("--force", is_flag=True, help="Tune again even if a tuned pattern is cached.")
 @json_option
