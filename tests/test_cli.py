@@ -270,6 +270,13 @@ def test_bad_usage_exits_2_with_one_line(tmp_path, args, word):
     _assert_bad(shoha(*args, cwd=tmp_path), word)
 
 
+def test_a_refusal_that_overflows_on_the_way_is_still_one_line():
+    """A voxel of 1e-320 m overflows numpy's division before the grid is refused: its warning,
+    with its source line, came above the refusal (three lines on stderr)."""
+    reference = str(ROOT / "tests" / "data" / "mini-reference.json")
+    _assert_bad(shoha("porosity", reference, "--method", "voxel", "--voxel-size", "1e-320"), "voxel size")
+
+
 def test_wheel_holds_exactly_the_three_packages(tmp_path):
     import subprocess
     import sys

@@ -14,6 +14,7 @@ where method, backend and strategy names map to classes.
 from __future__ import annotations
 
 import sys
+import warnings
 
 import click
 
@@ -46,6 +47,10 @@ for _command in (block, scene, convert, porosity, check, settle_cmd, optimize_cm
 
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the exit status (0 done, 2 bad input, 1 bug)."""
+    # A number that overflows on the way to a refusal (a voxel of 1e-320 m, a mesh 1e12 m
+    # across) made numpy and trimesh print their warnings, with source lines, above the one
+    # line the refusal is: the checks that follow say what is wrong, in the user's terms.
+    warnings.simplefilter("ignore", RuntimeWarning)
     try:
         cli.main(args=argv, prog_name="shoha", standalone_mode=False)
     except click.exceptions.Exit as exc:
