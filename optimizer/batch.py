@@ -598,12 +598,17 @@ def _run_pool(todo: Sequence[Item], task: Callable[..., dict[str, Any]], workers
             break
 
 
+def check_scheduler(scheduler: str | None) -> None:
+    """Refuse a ``--scheduler`` that is no address (None is none given). An address that is
+    none (``garbage``) is refused before a client is made: Dask's own refusal came with a
+    traceback from the half-made client, 20 s later, at exit."""
+    if scheduler is not None and not re.fullmatch(r"(?:[a-z]+://)?[^\s/:]+:\d{1,5}", scheduler):
+        raise InputError(f"--scheduler {scheduler}: not a scheduler address (tcp://HOST:PORT)")
+
+
 def _connect(scheduler: str) -> Any:
     """A Dask client of the scheduler at ``scheduler``."""
-    # An address that is none (``garbage``) is refused before a client is made: Dask's own
-    # refusal came with a traceback from the half-made client, 20 s later, at exit.
-    if not re.fullmatch(r"(?:[a-z]+://)?[^\s/:]+:\d{1,5}", scheduler):
-        raise InputError(f"--scheduler {scheduler}: not a scheduler address (tcp://HOST:PORT)")
+    check_scheduler(scheduler)
     try:
         from distributed import Client
     except ImportError:

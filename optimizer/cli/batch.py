@@ -36,7 +36,8 @@ class _Bar:
         self.bar.update(self.task, completed=done, errors=self.errors)
 
     def close(self) -> None:
-        self.bar.stop()
+        if self.task is not None:  # a bar never started printed an empty line above a refusal
+            self.bar.stop()
 
 
 @click.group("batch", cls=Group)
@@ -72,11 +73,21 @@ def batch_score(saves: tuple[str, ...], reference: str, source: str, block_type:
                 scheduler: str | None, as_json: bool) -> None:
     """Score every save (files, folders of .json, or glob patterns) against one reference."""
     from geometry.layout import read_layout
-    from optimizer.batch import SCORE_COLUMNS, Item, RowFile, expand_saves, run_batch, score_task, sha256_file
+    from optimizer.batch import (
+        SCORE_COLUMNS,
+        Item,
+        RowFile,
+        check_scheduler,
+        expand_saves,
+        run_batch,
+        score_task,
+        sha256_file,
+    )
     from settle.base import MAX_SECONDS
 
     if not 0 < seconds <= MAX_SECONDS:
         raise InputError(f"--seconds {seconds}: must be more than 0 and at most {MAX_SECONDS:g}")
+    check_scheduler(scheduler)
     rows = RowFile(check_out(out, (".csv", ".jsonl")), SCORE_COLUMNS)
     read_layout(reference).load_scene()  # a bad reference is bad usage, not 200 error rows
     ref_sha = sha256_file(reference)
@@ -115,9 +126,18 @@ def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None
                    workers: int, scheduler: str | None, as_json: bool) -> None:
     """Optimize every scene with every seed; one row per run, layouts into a folder."""
     from geometry.scene import load_scene
-    from optimizer.batch import OPTIMIZE_COLUMNS, Item, RowFile, optimize_task, parse_seeds, run_batch
+    from optimizer.batch import (
+        OPTIMIZE_COLUMNS,
+        Item,
+        RowFile,
+        check_scheduler,
+        optimize_task,
+        parse_seeds,
+        run_batch,
+    )
 
     check_time_limit(time_limit)
+    check_scheduler(scheduler)  # before the layouts' folder is made
     rows = RowFile(check_out(out, (".csv", ".jsonl")), OPTIMIZE_COLUMNS)
     folder = Path(layouts)
     if folder.exists() and not folder.is_dir():
