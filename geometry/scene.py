@@ -276,6 +276,8 @@ def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = Non
 
 _TOP_KEYS = {"name", "kind", "block", "target_porosity_percent", "required_blocks",
              "design", "tolerance", "foundation"}
+#: The least height and length a design prism may have, metres.
+MIN_DESIGN_M = 1e-3
 _DESIGN_KEYS = {"crest_width_m", "height_m", "slope_rise_run", "length_m", "wall"}
 _TOLERANCE_KEYS = {"crest_rise_m", "crest_widening_m", "slope_lengthening_m", "end_extension_m"}
 _FOUNDATION_KEYS = {"kind", "amplitude_m", "cell_m", "seed"}
@@ -328,6 +330,11 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     for key, value in (("crest_width_m", crest_width), ("height_m", height), ("length_m", length)):
         if value > 10_000:
             raise InputError(f"{source}: [design] {key} = {value} m is not a breakwater")
+    for key, value in (("height_m", height), ("length_m", length)):
+        # A prism a hair long or high (1e-300 m) spans no volume that geometry can measure:
+        # its coverage floor came out NaN, and later commands failed without naming the file.
+        if value < MIN_DESIGN_M:
+            raise InputError(f"{source}: [design] {key} = {value:g} m is less than {MIN_DESIGN_M:g} m")
 
     default = Allowance.table_ii(block.height)
     allowed = {}

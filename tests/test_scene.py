@@ -82,6 +82,11 @@ def test_rough_foundation_is_seeded_and_bounded(tmp_path):
         (MINI_TOML.replace("[3.0, 4.0]", "[0, 4]"), "slope_rise_run"),
         (MINI_TOML.replace("4.0\nheight", "nan\nheight"), "finite"),
         (MINI_TOML.replace("12.220833333333333", "-1"), "length_m"),
+        # A prism 5e-324 m long: its coverage floor was NaN (exit 1 with --json), and later
+        # commands said "prism: points span no volume", naming neither the file nor the key.
+        (MINI_TOML.replace("12.220833333333333", "5e-324"),
+         r"bad.toml: \[design\] length_m = 4.94066e-324 m"),
+        (MINI_TOML.replace("height_m = 3.0", "height_m = 1e-9"), r"bad.toml: \[design\] height_m = 1e-09 m"),
         (MINI_TOML + "colour = 'red'\n", "unknown key"),
         (MINI_TOML.replace('"shake-4t"', '"brick"'), "unknown block"),
         (MINI_TOML + "required_blocks = 1e9\n", "required_blocks"),
