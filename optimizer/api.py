@@ -67,7 +67,7 @@ from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
-from .search.physics import confirm, raised_check, stands, verdict
+from .search.physics import confirm, judged, raised_check, stands, verdict
 from .search.problem import TARGET_POINTS, Clock, Phase, Problem, Strategy
 from .search.toe import ToeRows
 from .search.trim import over, trim_moves
@@ -887,7 +887,7 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     if clock() + settle_reserve(problem.scene) > end:
         return attempt
     t1 = clock()
-    result = verdict(problem, build.placed(), rng)
+    result = verdict(problem, build.placed(), rng, movable=judged(build))
     phase["stood"] = bool(result.stable)
     if not result.stable:
         return attempt
