@@ -264,6 +264,10 @@ def test_bad_save_writes_nothing(tmp_path):
     (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1,2"], "origin"),
     (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1_0,2,3"], "origin"),
     (["frobnicate"], "frobnicate"),
+    # How to read a kept save, with no save to keep: taken and ignored, exit 0.
+    (["optimize", "mini", "--out", "o.json", "--origin", "1,2,3"], "--origin: says how to read the --keep"),
+    (["optimize", "mini", "--out", "o.json", "--block", "tetrapod"], "--block: says how to read the --keep"),
+    (["optimize", "mini", "--out", "o.json", "--from", "unity"], "--from: says how to read the --keep"),
 ])
 def test_bad_usage_exits_2_with_one_line(tmp_path, args, word):
     (tmp_path / "s.json").write_text('{"blocks": []}')

@@ -87,6 +87,8 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     from optimizer.score import check_same_scene
 
     check_time_limit(time_limit)
+    if keep_path is None:
+        _save_options_need_keep()
     path = check_out(out)
     # A mesh block's first cut into convex pieces may take at most this share of the limit.
     with cut_by(started + CUT_SHARE * (time_limit or MIN_DEFAULT_LIMIT)):
@@ -121,6 +123,17 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     emit(payload, as_json, human)
 
 
+
+
+def _save_options_need_keep() -> None:
+    """Refuse --from, --block or --origin without --keep: they say how to read the kept save,
+    and given alone they were taken and ignored."""
+    from click.core import ParameterSource
+
+    ctx = click.get_current_context()
+    for option, param in (("--from", "source"), ("--block", "block_type"), ("--origin", "origin")):
+        if ctx.get_parameter_source(param) is ParameterSource.COMMANDLINE:
+            raise InputError(f"{option}: says how to read the --keep save, and no --keep is given")
 
 
 class _Progress:
