@@ -599,6 +599,19 @@ def test_a_replan_time_limit_not_above_0_is_refused(seconds):
     assert f"--replan-time-limit {float(seconds)}: must be more than 0 seconds" in r.stderr
 
 
+def test_two_scenes_of_one_name_are_refused(tmp_path):
+    """A session names its scene: a file named as a built-in scene, or as another file, took
+    that scene's place without a word."""
+    mine = tmp_path / "my-mini.toml"
+    mine.write_text(TINY.read_text().replace('name = "tiny"', 'name = "mini"'))
+    assert 'name = "mini"' in mine.read_text()
+    r = shoha("serve", str(mine), timeout=60)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "its scene is named 'mini', as the built-in one is" in r.stderr
+    r = shoha("serve", str(TINY), str(TINY), timeout=60)
+    assert r.returncode == 2 and f"as {TINY} is" in r.stderr, r.stderr
+
+
 def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():
     """Found by the server only after it said it was serving, with exit status 3."""
     import socket
