@@ -364,6 +364,23 @@ def plain_number(text: str) -> bool:
     return text.isascii() and "_" not in text
 
 
+def size_key(name: str) -> tuple | None:
+    """A built-in block's kind and sizes, for telling two spellings of one size apart from two
+    sizes (``tetrapod``, ``tetrapod:2`` and ``tetrapod:2.0`` are one), without building it;
+    None for a name of no size (``shake-4t``, ``mesh:PATH``) or one that does not parse."""
+    kind, _, sizes = name.partition(":")
+    if kind == "tetrapod" and not sizes:
+        return ("tetrapod", 2.0)
+    if kind not in ("tetrapod", "box") or not sizes:
+        return None
+    box = kind == "box"
+    try:
+        values = _parse_floats(name, sizes.replace("x", ",") if box else sizes, 3 if box else 1)
+    except InputError:
+        return None
+    return (kind, *values)
+
+
 def _parse_floats(name: str, text: str, n: int) -> list[float]:
     try:
         values = [float(v) for v in text.split(",")] if plain_number(text) else []

@@ -612,6 +612,23 @@ def test_two_scenes_of_one_name_are_refused(tmp_path):
     assert r.returncode == 2 and f"as {TINY} is" in r.stderr, r.stderr
 
 
+def test_a_block_type_spelled_another_way_is_the_served_one():
+    """``tetrapod:2`` and ``tetrapod`` are the ``tetrapod:2.0`` a scene serves, and are kept under
+    the scene's own spelling (the live view draws each type by that name); a size no scene
+    serves is still refused. ``tetrapod:2`` was refused as an unknown type."""
+    from geometry.scene import load_scene
+    from optimizer.serve.bodies import BodyError, Catalogue
+
+    catalogue = Catalogue.of([load_scene("tetrapod"), load_scene("mini-section")])
+    for name in ("tetrapod:2", "tetrapod:2.00", "tetrapod"):
+        assert catalogue.spelled(name, "block") == ("tetrapod" if name == "tetrapod" else "tetrapod:2.0")
+    assert catalogue.spelled("box:1.2x1.0x0.6", "block") == "box:1.2x1x0.6"
+    assert catalogue.block("tetrapod:2", "block").volume == catalogue.block("tetrapod:2.0", "block").volume
+    for other in ("tetrapod:3", "box:1x1x1", "tetrapod:nan", "mesh:x.stl", 5):
+        with pytest.raises(BodyError, match="unknown block type|type must be a string"):
+            catalogue.spelled(other, "block")
+
+
 def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():
     """Found by the server only after it said it was serving, with exit status 3."""
     import socket

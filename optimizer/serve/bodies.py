@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from geometry.blocks import Block, get_block
+from geometry.blocks import Block, get_block, size_key
 from geometry.errors import InputError
 from geometry.fileio import ascii_digits, bounded_int, reject_constant
 from geometry.layout import FORMAT, MAX_COORDINATE, layout_from_dict, normalised_quaternion
@@ -213,12 +213,24 @@ class Catalogue:
             dirs.setdefault(s.block_type, s.base_dir)
         return cls(frozenset(names), tuple(sorted(dirs.items(), key=lambda kv: kv[0])))
 
-    def block(self, name: Any, where: str) -> Block:
+    def spelled(self, name: Any, where: str) -> str:
+        """``name`` as the served scenes spell it: ``tetrapod:2`` is ``tetrapod:2.0`` where a
+        scene names that one (the same size, parsed), and any name outside them is refused."""
         if not isinstance(name, str):
             raise BodyError(422, f"{where}: type must be a string")
-        if name not in self.names:
+        if name in self.names:
+            return name
+        size = size_key(name)
+        served = dict(self.base_dirs)  # the scenes' own types: their spelling first
+        same = sorted((known for known in self.names if size is not None and size_key(known) == size),
+                      key=lambda known: (known not in served, known))
+        if not same:
             raise BodyError(422, f"{where}: unknown block type {name[:60]!r} "
                                  f"(this service knows {', '.join(sorted(self.names))})")
+        return same[0]
+
+    def block(self, name: Any, where: str) -> Block:
+        name = self.spelled(name, where)
         return get_block(name, dict(self.base_dirs).get(name))
 
 
@@ -266,7 +278,8 @@ def block_body(value: Any, frame: str, origin: np.ndarray, default_type: str, ca
         q = _quaternion(_numbers(value["quaternion"], 4, f"{where}: quaternion"), f"{where}: quaternion")
         pose = Pose(_numbers(value["position"], 3, f"{where}: position"), q)
     _position(pose.position, f"{where}: position")
-    return BlockBody(kind, block, pose, time_value(value.get("time_s"), f"{where}: time_s"))
+    return BlockBody(catalogue.spelled(kind, where), block, pose,
+                     time_value(value.get("time_s"), f"{where}: time_s"))
 
 
 @dataclass(frozen=True)
@@ -341,5 +354,7 @@ def _layout_file(value: dict[str, Any], scene: Scene, catalogue: Catalogue) -> l
     out = []
     for p, t in zip(layout.blocks, times, strict=True):
         _position(p.pose.position, f"layout: block {p.id}: position")
-        out.append((p.id, BlockBody(p.type, catalogue.block(p.type, f"layout: block {p.id}"), p.pose, t)))
+        where = f"layout: block {p.id}"
+        out.append((p.id, BlockBody(catalogue.spelled(p.type, where), catalogue.block(p.type, where),
+                                    p.pose, t)))
     return out
