@@ -211,7 +211,9 @@ def _error_row(row: dict[str, Any], exc: Exception, start: float) -> dict[str, A
     if isinstance(exc, InputError):
         error = one_line(str(exc)) if str(exc) else "bad input"
     else:
-        error = f"internal error: {type(exc).__name__}: {exc}"
+        # One line, as every row's error is: a CSV record over two lines, torn in its quoted
+        # field, took the rows appended after it into that field.
+        error = one_line(f"internal error: {type(exc).__name__}: {exc}")
     return {**row, "status": "error", "error": error, "seconds": time.perf_counter() - start}
 
 
@@ -423,8 +425,11 @@ class RowFile:
                 row = json.loads(line)
             except json.JSONDecodeError:
                 raise InputError(f"{self.path}: line {n} is not JSON; use a new --out") from None
-            if not isinstance(row, dict) or not isinstance(row.get("item"), str):
-                raise InputError(f"{self.path}: line {n} is not a batch row; use a new --out")
+            # Rows are written with this batch's columns first, in order (``line``): a row of
+            # the other kind of batch (score rows in an optimize's file) is not one of these.
+            if (not isinstance(row, dict) or not isinstance(row.get("item"), str)
+                    or tuple(row)[:len(self.columns)] != self.columns):
+                raise InputError(f"{self.path}: line {n} is not a row of this batch; use a new --out")
             rows.append(row)
         return rows
 
@@ -548,7 +553,7 @@ def run_batch(
 
 
 def _crash_row(item: Item, what: str) -> dict[str, Any]:
-    return {"item": item.key, "status": "error", "error": f"internal error: {what}"}
+    return {"item": item.key, "status": "error", "error": one_line(f"internal error: {what}")}
 
 
 def _run_pool(todo: Sequence[Item], task: Callable[..., dict[str, Any]], workers: int,

@@ -21,6 +21,7 @@ import pytest
 from geometry.errors import InputError
 from geometry.layout import read_layout, write_layout
 from optimizer.batch import (
+    OPTIMIZE_COLUMNS,
     SCORE_COLUMNS,
     TIMING_COLUMNS,
     Item,
@@ -200,6 +201,8 @@ TINY = ROOT / "tests" / "data" / "tiny.toml"
 
 def test_batch_input_errors(tmp_path, saves):
     base = ["batch", "score", str(saves), "--reference", str(REFERENCE)]
+    notes = tmp_path / "notes.csv"
+    notes.write_text("my notes\n")
     cases = [
         (["batch", "score", str(tmp_path / "nothing-*.json"), "--reference", str(REFERENCE),
           "--out", str(tmp_path / "o.csv")], "no saves match"),
@@ -222,6 +225,11 @@ def test_batch_input_errors(tmp_path, saves):
           str(tmp_path / "o.csv")], "mini: its layouts would be written over those of mini"),
         (["batch", "optimize", str(TINY), f"{TINY.parent}/../data/{TINY.name}", "--layouts",
           str(tmp_path / "l"), "--out", str(tmp_path / "o.csv")], "tiny-seedN.json"),
+        # Refused once the run has begun to read: the layouts' folder was made by then.
+        (["batch", "optimize", "mini", "--layouts", str(tmp_path / "l"), "--out", str(notes)],
+         "its columns are not those of this batch"),
+        (["batch", "optimize", "mini", "--layouts", str(tmp_path / "l"), "--out", str(tmp_path / "o.csv"),
+          "--scheduler", "tcp://127.0.0.1:9"], "cannot connect"),
     ]
     for args, word in cases:
         r = shoha(*args, timeout=120)
@@ -263,10 +271,19 @@ def test_row_file_cuts_a_torn_last_line_and_refuses_other_files(tmp_path):
     lines.write_text('{"item": "a"}\nnot json\n')
     with pytest.raises(InputError):
         RowFile(lines, SCORE_COLUMNS).read()
-    for bad in ('{"item": NaN}', '{"item": 3}', '{"item": null}', '{"score": 1}'):
-        lines.write_text('{"item": "a"}\n' + bad + "\n")
-        with pytest.raises(InputError, match="line 2 is not a batch row"):
+    good = RowFile(lines, SCORE_COLUMNS).line({"item": "a", "status": "ok"}).decode()
+    for bad in ('{"item": NaN}', '{"item": 3}', '{"item": null}', '{"score": 1}', '{"item": "b"}'):
+        lines.write_text(good + bad + "\n")
+        with pytest.raises(InputError, match="line 2 is not a row of this batch"):
             RowFile(lines, SCORE_COLUMNS).read()
+    # The other kind of batch's rows (and a torn one after them) are refused, and left as they are.
+    scores = RowFile(tmp_path / "scores.jsonl", SCORE_COLUMNS)
+    scores.append({"item": "a.json", "status": "ok", "score": 90.0})
+    text = scores.path.read_bytes() + b'{"item": "b.js'
+    scores.path.write_bytes(text)
+    with pytest.raises(InputError, match="line 1 is not a row of this batch"):
+        RowFile(scores.path, OPTIMIZE_COLUMNS).read()
+    assert scores.path.read_bytes() == text
     with pytest.raises(InputError):
         RowFile(tmp_path / "rows.txt", SCORE_COLUMNS)
     # One line that is not this batch's, without its newline, is no torn row: it stays (it was cut).

@@ -152,13 +152,16 @@ def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None
         if (other := stems.setdefault(Path(s).stem, s)) != s or scenes.count(s) > 1:
             raise InputError(f"{s}: its layouts would be written over those of {other} "
                              f"({Path(s).stem}-seedN.json); give each scene once, with its own name")
-    folder.mkdir(parents=True, exist_ok=True)
     items = [Item(f"{s}:seed{n}", {"scene": s, "seed": n, "time_limit": time_limit,
                                     "layouts": str(folder)}) for s in scenes for n in seed_list]
     bar = _Bar("optimizing")
     try:
-        summary = run_batch(items, optimize_task, rows, workers, scheduler, progress=bar,
-                            on_start=bar.start)
+        def start(todo: int, skipped: int) -> None:
+            # Made once --out reads as this batch's and the scheduler answers: not before a refusal.
+            folder.mkdir(parents=True, exist_ok=True)
+            bar.start(todo, skipped)
+
+        summary = run_batch(items, optimize_task, rows, workers, scheduler, progress=bar, on_start=start)
     finally:
         bar.close()
     emit(summary.to_dict(), as_json,
