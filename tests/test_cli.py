@@ -242,9 +242,21 @@ def test_no_command_writes_over_its_own_input(tmp_path):
         (("block", "export", f"mesh:{mesh}", "--out", str(mesh)), "is the block's own mesh"),
         (("settle", str(layout), "--out", str(layout)), "is the layout settled"),
     ]
+    # A layout to keep that names a copy of the scene: that copy was read too.
+    copy = tmp_path / "copy.toml"
+    copy.write_text(scene.read_text())
+    partial = tmp_path / "partial.json"
+    partial.write_text('{"format": "shoha-layout/1", "scene": "copy.toml", "blocks": []}')
+    before.update({copy: copy.read_bytes(), partial: partial.read_bytes()})
+    cases.append((("optimize", str(scene), "--keep", str(partial), "--out", str(copy), "--time-limit", "5"),
+                  "is the scene file of the --keep layout"))
     for args, said in cases:
         _assert_bad(shoha(*args), said)
     assert {p: p.read_bytes() for p in before} == before
+    # A built-in scene's name is not the file of that name beside it: that one was not read.
+    (tmp_path / "mini").write_text("notes")
+    r = shoha("optimize", "mini", "--out", "mini", "--time-limit", "3", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
 
 
 def test_bad_save_writes_nothing(tmp_path):
