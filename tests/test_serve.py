@@ -629,6 +629,28 @@ def test_a_block_type_spelled_another_way_is_the_served_one():
             catalogue.spelled(other, "block")
 
 
+def test_a_reference_for_another_scene_of_a_served_name_is_refused(tmp_path):
+    """A ``--reference`` is served with its scene only if that is the served scene whole: one for
+    a file named ``mini`` with its own ground and target was served as the built-in mini's."""
+    from geometry.errors import InputError
+    from geometry.layout import write_layout
+    from geometry.scene import load_scene
+    from optimizer.serve.service import Service
+    from tests.conftest import ROOT
+
+    mine = tmp_path / "rough-mini.toml"
+    text = (ROOT / "geometry" / "scenes" / "mini.toml").read_text()
+    mine.write_text(text.replace('kind = "flat"', 'kind = "rough"\namplitude_m = 0.15'))
+    layout = read_layout(REFERENCE)
+    layout.scene = str(mine)
+    ref = tmp_path / "ref.json"
+    write_layout(layout, ref)
+    assert load_scene(str(mine)).name == "mini" and load_scene(str(mine)).design == load_scene("mini").design
+    with pytest.raises(InputError, match="is not one this service serves"):
+        Service([load_scene("mini")], [str(ref)])
+    Service([load_scene("mini")], [str(REFERENCE)])  # the built-in mini's own reference is served
+
+
 def test_a_port_taken_or_a_host_unknown_is_refused_before_serving():
     """Found by the server only after it said it was serving, with exit status 3."""
     import socket

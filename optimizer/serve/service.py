@@ -116,7 +116,11 @@ def load_reference(path: str, scenes: dict[str, Served]) -> tuple[Served, Layout
     layout = read_layout(path)
     scene = layout.load_scene()
     served = scenes.get(scene.name)
-    if served is None or served.scene.design != scene.design or served.scene.block_type != scene.block_type:
+    # The whole scene, not its name and section alone: a file named as a built-in scene with its
+    # own ground or target had its reference served as the built-in one's.
+    if served is None or any(getattr(served.scene, key) != getattr(scene, key) for key in
+                             ("design", "block_type", "foundation", "allowance", "target_porosity",
+                              "required_blocks")):
         raise InputError(f"{path}: its scene {layout.scene!r} is not one this service serves")
     return served, layout
 
