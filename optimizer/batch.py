@@ -607,7 +607,9 @@ def check_scheduler(scheduler: str | None) -> None:
     """Refuse a ``--scheduler`` that is no address (None is none given). An address that is
     none (``garbage``) is refused before a client is made: Dask's own refusal came with a
     traceback from the half-made client, 20 s later, at exit."""
-    if scheduler is not None and not re.fullmatch(r"(?:[a-z]+://)?[^\s/:]+:\d{1,5}", scheduler):
+    # HOST:PORT, with a scheme or none; an IPv6 host in brackets ([::1]:8786).
+    if scheduler is not None and not re.fullmatch(
+            r"(?:[A-Za-z][A-Za-z0-9+.-]*://)?(?:\[[0-9A-Fa-f:.]+\]|[^\s/:\[\]]+):\d{1,5}", scheduler):
         raise InputError(f"--scheduler {scheduler}: not a scheduler address (tcp://HOST:PORT)")
 
 

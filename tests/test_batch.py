@@ -199,6 +199,19 @@ def test_dask_matches_the_pool_and_survives_a_killed_worker(cluster, saves, pool
 TINY = ROOT / "tests" / "data" / "tiny.toml"
 
 
+def test_a_scheduler_address_is_host_and_port():
+    """``--scheduler``: any scheme or none, a name, an IPv4 or a bracketed IPv6 host, and a port
+    (``tcp://[::1]:8786`` was refused as no address)."""
+    from optimizer.batch import check_scheduler
+
+    for address in ("tcp://127.0.0.1:8786", "tcp://[::1]:8786", "TCP://sched.example:8786", "host:1",
+                    "tls://[fe80::1]:8786", None):
+        check_scheduler(address)
+    for address in ("garbage", "tcp://[::1]", "tcp://host", "tcp://host:123456", "tcp://a b:1", "tcp://[x]:1"):
+        with pytest.raises(InputError, match="not a scheduler address"):
+            check_scheduler(address)
+
+
 def test_batch_input_errors(tmp_path, saves):
     base = ["batch", "score", str(saves), "--reference", str(REFERENCE)]
     notes = tmp_path / "notes.csv"
