@@ -327,12 +327,13 @@ def get_block(name: str, base_dir: str | os.PathLike | None = None) -> Block:
         raise InputError(f"block type must be a string, not {type(name).__name__}")
     if name == "shake-4t":
         return shake_block()
-    if name == "tetrapod" or name.startswith("tetrapod:"):
-        return tetrapod(2.0 if name == "tetrapod" else _parse_floats(name, name[len("tetrapod:"):], 1)[0])
-    if name.startswith("box:"):
-        a, b, c = _parse_floats(name, name[4:].replace("x", ","), 3)
-        check_aspect((a, b, c), f"block type {name!r}")
-        return box_block(a, b, c)
+    sized = _sizes(name)
+    if sized is not None:
+        kind, *sizes = sized
+        if kind == "tetrapod":
+            return tetrapod(sizes[0])
+        check_aspect(sizes, f"block type {name!r}")
+        return box_block(*sizes)
     path = mesh_path(name, base_dir)
     if path is not None:
         return mesh_block(str(path), name)
@@ -368,17 +369,22 @@ def size_key(name: str) -> tuple | None:
     """A built-in block's kind and sizes, for telling two spellings of one size apart from two
     sizes (``tetrapod``, ``tetrapod:2`` and ``tetrapod:2.0`` are one), without building it;
     None for a name of no size (``shake-4t``, ``mesh:PATH``) or one that does not parse."""
-    kind, _, sizes = name.partition(":")
-    if kind == "tetrapod" and not sizes:
-        return ("tetrapod", 2.0)
-    if kind not in ("tetrapod", "box") or not sizes:
-        return None
-    box = kind == "box"
     try:
-        values = _parse_floats(name, sizes.replace("x", ",") if box else sizes, 3 if box else 1)
+        return _sizes(name)
     except InputError:
         return None
-    return (kind, *values)
+
+
+def _sizes(name: str) -> tuple | None:
+    """``("tetrapod", H)`` or ``("box", A, B, C)`` for a sized built-in name (``tetrapod`` is
+    2 m high); None for any other name. Raises InputError for sizes that do not parse."""
+    if name == "tetrapod":
+        return ("tetrapod", 2.0)
+    if name.startswith("tetrapod:"):
+        return ("tetrapod", *_parse_floats(name, name[len("tetrapod:"):], 1))
+    if name.startswith("box:"):
+        return ("box", *_parse_floats(name, name[4:].replace("x", ","), 3))
+    return None
 
 
 def _parse_floats(name: str, text: str, n: int) -> list[float]:

@@ -189,7 +189,7 @@ class Scene:
         A built-in name as it is; a scene file as a path relative to the
         layout's folder (docs/contract.md: resolved relative to the layout file).
         """
-        if self.source is None or self.source in builtin_scenes():
+        if scene_file(self.source) is None:
             return self.source or self.name
         if layout_dir is None:
             return self.source
@@ -243,6 +243,14 @@ def builtin_scenes() -> list[str]:
     """Names of the built-in scenes."""
     folder = resources.files("geometry") / "scenes"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".toml"))
+
+
+def scene_file(spec: str | os.PathLike | None) -> str | None:
+    """The file a scene spec (or a scene's ``source``) reads, as :func:`load_scene` takes it:
+    None for a built-in name, which no file of that name beside it shadows, or for none."""
+    if spec is None or str(spec) in builtin_scenes():
+        return None
+    return str(spec)
 
 
 def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = None) -> Scene:

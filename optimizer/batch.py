@@ -407,7 +407,7 @@ class RowFile:
             buf = io.StringIO()
             csv.writer(buf, lineterminator="\n").writerow(self.columns)
             return buf.getvalue().encode()
-        return json.dumps({self.columns[0]: ""})[:len(self.columns[0]) + 4].encode()
+        return f'{{"{self.columns[0]}":'.encode()  # ``line`` writes the first column first
 
     def _rows(self, data: bytes) -> list[dict[str, Any]]:
         """The rows of whole lines, refused unless they are this batch's output."""

@@ -81,7 +81,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
     started = time.monotonic()  # the limit covers reading the scene and cutting a mesh too
     from geometry.blocks import cut_by, mesh_path
     from geometry.layout import MAX_ID, write_layout
-    from geometry.scene import builtin_scenes, load_scene
+    from geometry.scene import load_scene, scene_file
     from optimizer.api import MIN_DEFAULT_LIMIT, check_keep, optimize
     from optimizer.batch import load_save
     from optimizer.score import check_same_scene
@@ -91,8 +91,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
         _save_options_need_keep()
     path = check_out(out)
     # Before the scene is read: a mesh block's first cut may take most of the limit.
-    check_not_input(path, [(None if scene_name in builtin_scenes() else scene_name, "scene file"),
-                           (keep_path, "--keep file")])
+    check_not_input(path, [(scene_file(scene_name), "scene file"), (keep_path, "--keep file")])
     # A mesh block's first cut into convex pieces may take at most this share of the limit.
     with cut_by(started + CUT_SHARE * (time_limit or MIN_DEFAULT_LIMIT)):
         scene = load_scene(scene_name)
@@ -103,9 +102,7 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
                                            parse_origin(origin))
         check_same_scene(partial_scene, scene, keep_path, against="the optimized")
         # The scene file the kept layout names was read too (a copy of SCENE, say).
-        named = partial_scene.source
-        check_not_input(path, [(None if named is None or named in builtin_scenes() else named,
-                                "scene file of the --keep layout")])
+        check_not_input(path, [(scene_file(partial_scene.source), "scene file of the --keep layout")])
         keep = partial.blocks
         last = max((p.id for p in keep), default=-1)
         if last + scene.required_blocks > MAX_ID:

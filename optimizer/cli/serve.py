@@ -70,16 +70,7 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
     from optimizer.serve.app import run
     from optimizer.serve.service import Service
 
-    scenes = [load_scene(name) for name in builtin_scenes()]
-    named = {s.name: "the built-in one" for s in scenes}
-    for path in scene_files:
-        scene = load_scene(path)
-        # Sessions name their scene: a second scene of one name took the first one's place.
-        if (other := named.get(scene.name)) is not None:
-            raise InputError(f"{path}: its scene is named {scene.name!r}, as {other} is; "
-                             "give each served scene its own name")
-        named[scene.name] = path
-        scenes.append(scene)
+    scenes = [load_scene(name) for name in builtin_scenes()] + [load_scene(path) for path in scene_files]
     service = Service(scenes, list(references), reference_seconds=reference_time_limit,
                       replan_seconds=replan_time_limit, max_sessions=max_sessions, idle_s=idle_timeout)
     logging.basicConfig(level=logging.WARNING, format="shoha serve: %(message)s")

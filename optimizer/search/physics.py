@@ -223,7 +223,7 @@ def settled_layout(problem: Problem, build: Build, result: SettleResult, rng: np
     with what rests on it.
     """
     free = [k for k in build.order if k not in build.kept]
-    if build.kept:  # (the kept blocks one inside another are held by ``judged`` in the verdict below)
+    if build.kept:
         result = settle(problem.scene, build.placed(), seed=int(rng.integers(2**31)), movable=free)
     after = build.settled(result.poses)
     bad = {k for k in after.order if k not in after.kept

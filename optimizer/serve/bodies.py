@@ -267,7 +267,7 @@ def block_body(value: Any, frame: str, origin: np.ndarray, default_type: str, ca
             other = "quaternion" if frame == "unity" else "rotation"
             hint = f" (a {frame}-frame session takes {k}, not {other})" if other in value else ""
             raise BodyError(422, f"{where}: missing {k!r}{hint}")
-    kind = value.get("type", default_type)
+    kind = catalogue.spelled(value.get("type", default_type), where)
     block = catalogue.block(kind, where)
     if frame == "unity":
         position = _fields(value["position"], "xyz", f"{where}: position")
@@ -278,8 +278,7 @@ def block_body(value: Any, frame: str, origin: np.ndarray, default_type: str, ca
         q = _quaternion(_numbers(value["quaternion"], 4, f"{where}: quaternion"), f"{where}: quaternion")
         pose = Pose(_numbers(value["position"], 3, f"{where}: position"), q)
     _position(pose.position, f"{where}: position")
-    return BlockBody(catalogue.spelled(kind, where), block, pose,
-                     time_value(value.get("time_s"), f"{where}: time_s"))
+    return BlockBody(kind, block, pose, time_value(value.get("time_s"), f"{where}: time_s"))
 
 
 @dataclass(frozen=True)
@@ -343,7 +342,7 @@ def _layout_file(value: dict[str, Any], scene: Scene, catalogue: Catalogue) -> l
         where = f"layout: block #{index}"
         raw = _object(raw, where)
         # Types are checked here, before geometry.layout builds any block from them.
-        catalogue.block(raw.get("type"), where)
+        catalogue.spelled(raw.get("type"), where)
         times.append(time_value(raw.get("time_s"), f"{where}: time_s"))
         stripped.append({k: v for k, v in raw.items() if k != "time_s"})
     data = {"format": FORMAT, "scene": scene.name, "blocks": stripped}
@@ -354,7 +353,6 @@ def _layout_file(value: dict[str, Any], scene: Scene, catalogue: Catalogue) -> l
     out = []
     for p, t in zip(layout.blocks, times, strict=True):
         _position(p.pose.position, f"layout: block {p.id}: position")
-        where = f"layout: block {p.id}"
-        out.append((p.id, BlockBody(catalogue.spelled(p.type, where), catalogue.block(p.type, where),
-                                    p.pose, t)))
+        kind = catalogue.spelled(p.type, f"layout: block {p.id}")
+        out.append((p.id, BlockBody(kind, catalogue.block(kind, f"layout: block {p.id}"), p.pose, t)))
     return out

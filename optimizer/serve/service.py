@@ -27,7 +27,7 @@ from typing import Any
 from geometry.errors import InputError
 from geometry.layout import Layout, layout_from_dict, read_layout
 from geometry.porosity import porosity
-from geometry.scene import Scene
+from geometry.scene import Scene, scene_file
 
 from .bodies import (
     BodyError,
@@ -134,13 +134,19 @@ class PreparedLayout:
     started: float
 
 
+def _which(scene: Scene) -> str:
+    """A served scene in words: the built-in one, or its file."""
+    return "the built-in one" if scene_file(scene.source) is None else str(scene.source)
+
+
 class Service:
     """The endpoints of ``shoha serve`` (docs/serve.md), without the web layer.
 
     Parameters
     ----------
     scenes : list of Scene
-        The scenes to serve, by name (a later one of the same name wins).
+        The scenes to serve, by name; two of one name are refused (InputError): sessions
+        name their scene, and a second one took the first one's place.
     references : list of str
         ``--reference`` layout files; each names its scene.
     reference_seconds : float or None
@@ -156,7 +162,12 @@ class Service:
     def __init__(self, scenes: list[Scene], references: list[str] = (), *,
                  reference_seconds: float | None = None, replan_seconds: float | None = None,
                  max_sessions: int = MAX_SESSIONS, idle_s: float = IDLE_SECONDS):
-        self.scenes: dict[str, Served] = {s.name: Served(s) for s in scenes}
+        self.scenes: dict[str, Served] = {}
+        for s in scenes:
+            if (other := self.scenes.get(s.name)) is not None:
+                raise InputError(f"{s.source or s.name}: its scene is named {s.name!r}, as "
+                                 f"{_which(other.scene)} is; give each served scene its own name")
+            self.scenes[s.name] = Served(s)
         for path in references:
             served, layout = load_reference(path, self.scenes)
             served.set_reference(layout, "file")
