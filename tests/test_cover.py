@@ -9,8 +9,11 @@ from geometry.checks import check_layout
 from geometry.coverage import coverage
 from geometry.layout import read_layout
 from geometry.scene import load_scene
-from optimizer.search import cover
+from optimizer.search import cover, toe
 from optimizer.search.build import Build
+from optimizer.search.patterns import lattice_for
+from optimizer.search.physics import raised_check
+from optimizer.search.problem import Problem
 from tests.clock import WorkClock
 from tests.conftest import ROOT
 from tests.test_strategies import problem
@@ -158,3 +161,20 @@ def test_no_more_than_groups_of_blocks_are_tried_for_a_move(mini_reference, monk
     monkeypatch.setattr(cover, "_best_for", none)
     moved, _, stats = cover.cover_moves(problem(scene), build, coverage(scene, build.placed()))
     assert stats.moved == 0 and len(asked) == cover.GROUPS * cover.BLOCKS_TRIED < len(build.free_keys())
+
+
+
+def test_toe_rows_are_laid_from_the_start_that_leaves_least_outside_the_prism(mini, monkeypatch):
+    """Of the places a row is laid from, the one kept has as many blocks as the row laid from the
+    zone's start, and holds less volume outside the design prism: the first block of a row
+    laid from the zone's start sticks out of the mound's end."""
+    problem = Problem(mini, mini.required_blocks, mini.target_porosity, lattice_for(mini.block, "shake-4t"))
+
+    def rows(starts):
+        monkeypatch.setattr(toe, "STARTS", starts)  # 1: from the zone's start only
+        build = toe.ToeRows(accept=raised_check).run(problem, None, np.random.default_rng(1)).build
+        return len(build), len(build) * mini.block.volume - build.inside_volume
+
+    (laid, outside), (plain_laid, plain_outside) = rows(toe.STARTS), rows(1)
+    assert laid == plain_laid >= 10
+    assert outside < plain_outside - 0.1

@@ -51,6 +51,10 @@ REACH = 0.9
 RESOLUTION = 0.01
 #: Steps along the row from one block to the next, as a share of the block height.
 ROW_STEP = 0.03
+#: Places the row is laid from, evenly from the zone's start to where the first block's end is
+#: ``START_PAST`` of its width past the design prism's end, inwards: the best row is kept.
+STARTS = 4
+START_PAST = 0.1
 
 
 @dataclass(frozen=True)
@@ -107,7 +111,8 @@ class ToeRows(Strategy):
             fam, yaw, dist = chosen
             names.append(f"{fam} {np.degrees(yaw):.0f}")
             reach.append(dist)
-            placed += self._row(problem, build, shapes, side, fam, yaw)
+            build, laid = self._best_row(problem, build, shapes, side, fam, yaw)
+            placed += laid
         return Phase(build, ToeStats(placed, tuple(names), tuple(reach)), origin)
 
     # --- which hanging ---------------------------------------------------------------
@@ -140,13 +145,32 @@ class ToeRows(Strategy):
 
     # --- the row ---------------------------------------------------------------------------
 
-    def _row(self, problem: Problem, build: Build, shapes: ShapeCache, side: float, fam: str,
-             yaw: float) -> int:
-        """Lay the row from the zone's start to its end; returns how many blocks it placed."""
-        _, (y, y_end) = search_window(problem.scene)
-        h = problem.scene.block.height
+    def _best_row(self, problem: Problem, build: Build, shapes: ShapeCache, side: float, fam: str,
+                  yaw: float) -> tuple[Build, int]:
+        """The row laid from each of ``STARTS`` places at the mound's start, on copies of ``build``:
+        the one with the most blocks, then the least volume outside the design prism. Returns
+        the build with it, and how many blocks it has."""
+        scene = problem.scene
         shape = shapes.hung(fam, yaw)
         width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
+        first = search_window(scene)[1][0]
+        flush = max(first, scene.design.y_start + (0.5 + START_PAST) * width)
+        best = None
+        for start in np.linspace(first, flush, STARTS):
+            if best is not None and problem.time_left() <= 0:
+                break
+            trial = build.copy()
+            laid = self._row(problem, trial, shape, width, side, float(start))
+            outside = laid * scene.block.volume - (trial.inside_volume - build.inside_volume)
+            if best is None or (-laid, outside) < best[0]:
+                best = ((-laid, outside), trial, laid)
+        return best[1], best[2]
+
+    def _row(self, problem: Problem, build: Build, shape: Shape, width: float, side: float,
+             y: float) -> int:
+        """Lay the row from ``y`` to the zone's end; returns how many blocks it placed."""
+        y_end = search_window(problem.scene)[1][1]
+        h = problem.scene.block.height
         step = ROW_STEP * h
         placed = 0
         while y <= y_end and len(build) < problem.required and problem.time_left() > 0:
