@@ -224,3 +224,33 @@ def test_the_crowding_bound_holds_for_the_densest_packing_of_the_block(name):
     check_not_crowded(block, grid, ids, "lattice")
     with pytest.raises(InputError, match=f"more than the {most_within_reach(block)} that could lie there"):
         check_not_crowded(block, grid / 4, ids, "squeezed")
+
+
+def test_pattern_origin_found_behind_rows_laid_off_it(mini):
+    """Kept blocks that begin with toe rows, off the pattern, and go on along the pattern: the
+    origin the pattern was laid from is among those proposed, though the rows come first in
+    crane order and the dense sites put some site near many a block of other origins too."""
+    from scipy.spatial import cKDTree
+
+    from optimizer.api import kept_build
+    from optimizer.search.patterns import lattice_for
+    from optimizer.search.physics import raised_check
+    from optimizer.search.problem import Problem
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import kept_origins, pattern_pass, pattern_sites
+    from optimizer.search.toe import ToeRows
+
+    problem = Problem(mini, mini.required_blocks, mini.target_porosity, lattice_for(mini.block, "shake-4t"))
+    rows = ToeRows(accept=raised_check).run(problem, None, np.random.default_rng(1)).build
+    origin = (0.115, 0.735)
+    laid = pattern_pass(problem, ShapeCache(mini.block), rows, origin, laid=list(rows.order))
+    keep = [Placement(i, "shake-4t", laid.poses[k]) for i, k in enumerate(laid.order[:len(rows) + 16])]
+    build = kept_build(mini, keep)
+    on_pattern = np.array([p.pose.position[:2] for p in keep[len(rows):]])
+
+    def under(o):
+        sites = np.array([(x, y) for _, _, x, y in pattern_sites(problem, o)])
+        return int((cKDTree(sites).query(on_pattern)[0] < 0.01).sum())
+
+    assert len(rows) >= 10
+    assert max(under(o) for o in kept_origins(problem, build)) == 16

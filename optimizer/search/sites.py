@@ -148,8 +148,12 @@ def pattern_sites(problem: Problem, origin: tuple[float, float]) -> list[tuple[s
 SITE_MATCH = 0.2
 #: Sites this many bounding radii of a block already laid off the pattern are left out.
 OFF_PATTERN = 1.0
-#: Kept blocks that propose origins (each proposes two): the rest only count.
-PROPOSERS = 16
+#: Kept blocks that propose origins (each proposes two), evenly over the crane order: the rest
+#: only count.
+PROPOSERS = 32
+#: A kept block within this share of the lattice's smaller period of a site stands on it
+#: exactly (a site as drawn, before any jitter or settle), when origins are counted.
+EXACT_MATCH = 0.05
 
 
 def kept_origins(problem: Problem, build: Build, most: int = 3) -> list[tuple[float, float]]:
@@ -158,36 +162,46 @@ def kept_origins(problem: Problem, build: Build, most: int = 3) -> list[tuple[fl
     A partial layout laid from the pattern (a reference cut short) is
     completed along its own rows: each kept block proposes the origin that
     puts a site of either family under it, and an origin counts the kept
-    blocks it puts a site under. Origins under fewer than two are left out
+    blocks it puts a site under, within ``EXACT_MATCH`` first and then
+    within ``SITE_MATCH``. Origins under fewer than two are left out
     (kept blocks off any pattern, such as a trainee's, propose none).
+
+    The sites are dense enough that ``SITE_MATCH`` alone does not tell the
+    pattern's origin from others: the first 30 blocks of a ``mini`` reference
+    (14 in toe rows, off the pattern) lay under 22 sites of their own origin
+    and under 24 to 26 of three others, whose quick passes placed 58 to 60
+    blocks against 75 (2026-11-27). Within ``EXACT_MATCH``, 17 lay under
+    their own and under one other, and under at most 4 of the rest.
     """
     lat = problem.lattice
     kept = np.array([build.poses[k].position[:2] for k in build.kept]).reshape(-1, 2)
     if len(kept) < 2:
         return []
     proposals = []
-    # The first blocks in crane order propose (a pattern's first ones are on its sites).
-    for x, y in kept[:PROPOSERS]:
+    # Proposers evenly over the crane order: the first blocks may be rows off the pattern.
+    for x, y in kept[np.unique(np.linspace(0, len(kept) - 1, min(PROPOSERS, len(kept))).astype(int))]:
         for du, dv in ((0.0, 0.0), (lat.u, lat.v)):
             j = np.floor((x - du) / lat.w)
             proposals.append((x - du - j * lat.w, (y - dv - j * lat.q) % lat.p))
-    counted = sorted(((-_under(problem, o, kept), i, o) for i, o in enumerate(proposals)))
+    counted = sorted(((tuple(-n for n in _under(problem, o, kept)), i, o) for i, o in enumerate(proposals)))
     out: list[tuple[float, float]] = []
     for minus, _, o in counted:
-        if -minus < 2 or len(out) == most:
+        if -minus[0] < 2 or len(out) == most:
             break
         if all(np.hypot(o[0] - p[0], o[1] - p[1]) > SITE_MATCH * min(lat.w, lat.p) for p in out):
             out.append((float(o[0]), float(o[1])))
     return out
 
 
-def _under(problem: Problem, origin: tuple[float, float], kept: np.ndarray) -> int:
-    """How many of ``kept`` (x, y) stand on a site of the pattern laid from ``origin``."""
+def _under(problem: Problem, origin: tuple[float, float], kept: np.ndarray) -> tuple[int, int]:
+    """How many of ``kept`` (x, y) stand on a site of the pattern laid from ``origin``: within
+    ``EXACT_MATCH``, and within ``SITE_MATCH``."""
     sites = np.array([(x, y) for _, _, x, y in pattern_sites(problem, origin)]).reshape(-1, 2)
     if not len(sites):
-        return 0
+        return 0, 0
     d, _ = cKDTree(sites).query(kept)
-    return int((d <= SITE_MATCH * min(problem.lattice.w, problem.lattice.p)).sum())
+    period = min(problem.lattice.w, problem.lattice.p)
+    return int((d <= EXACT_MATCH * period).sum()), int((d <= SITE_MATCH * period).sum())
 
 
 def laid_sites(problem: Problem, build: Build, sites: list[tuple[str, float, float, float]],
