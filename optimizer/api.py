@@ -68,7 +68,7 @@ from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, judged, raised_check, stands, verdict
-from .search.problem import TARGET_POINTS, Clock, Phase, Problem, Strategy
+from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
 from .search.toe import ToeRows
 from .search.trim import over, trim_moves
 
@@ -90,7 +90,6 @@ def default_time_limit(scene: Scene) -> float:
 #: collisions and porosity about 0.2 s for 1005 blocks; the coverage about 2 ms a square
 #: metre of slopes and crest (0.24 s for mini's 171 m2, 4.4 s for full's 2310 m2).
 SETTLE_SECONDS_75 = 0.6
-SETTLE_EXPONENT = 1.15
 #: A rough underlayer (a MuJoCo height field) and a wall make a settle slower, by these
 #: factors on the estimate above: measured on 2 cores with ``shoha settle``, 1.27 s for
 #: mini-rough's 69 blocks, 0.94 s for wall-shake's 72 and 0.73 s for 53 blocks behind a wall
@@ -105,15 +104,32 @@ COVERAGE_SECONDS_PER_M2 = 0.002
 #: settle and checks are quick).
 RESERVE_MARGIN = 2.0
 RESERVE_SHARE = 0.5
+#: A settle reserve from the settles timed in the run (:class:`search.problem.SettleMeter`) is
+#: this many times what they took, scaled to the count. The estimate above is for flat mounds:
+#: ``big-shake``'s 269 blocks, 4.5 m high, took 7.4 s to settle alone on 2 cores against its
+#: 2.6 s, and 9-15 s with a third busy process; the confirming settles then did not fit in the
+#: reserve, and half the layouts of that run were written as they failed (2026-11-27).
+MEASURED_MARGIN = 1.5
 
 
-def settle_reserve(scene: Scene, blocks: int | None = None) -> float:
+def settle_reserve(scene: Scene, blocks: int | None = None, meter: SettleMeter | None = None) -> float:
     """Seconds kept for the settles that confirm a layout of ``blocks`` (the required count by
-    default; two kicks, ``physics.verdict``; repairs take what time is left)."""
+    default; two kicks, ``physics.verdict``; repairs take what time is left): the estimate, or
+    more where the whole-layout settles timed in this run (``meter``) say so."""
     n, pieces = blocks or scene.required_blocks, len(scene.block.pieces)
     ground = max(SETTLE_FACTOR_ROUGH if scene.foundation.kind == "rough" else 1.0,
                  SETTLE_FACTOR_WALL if scene.design.wall_x is not None else 1.0)
-    return 2 * RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5 * ground
+    estimate = 2 * RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5 * ground
+    timed = meter.seconds(n) if meter is not None else None
+    return estimate if timed is None else max(estimate, 2 * MEASURED_MARGIN * timed)
+
+
+def calibrated(problem: Problem, end: float) -> Problem:
+    """``problem`` with its deadline brought forward where the settles timed so far say that the
+    confirming settles, due by ``end``, need more time than it leaves (never before
+    ``problem.meter.earliest``)."""
+    deadline = max(problem.meter.earliest, end - settle_reserve(problem.scene, meter=problem.meter))
+    return problem if deadline >= problem.deadline else replace(problem, deadline=deadline)
 
 
 def check_reserve(scene: Scene, blocks: int | None = None) -> float:
@@ -424,6 +440,7 @@ def optimize(
         deadline=start + time_limit - reserve,
         report=report,
         clock=clock,
+        meter=SettleMeter(earliest=start + (1.0 - RESERVE_SHARE) * time_limit),
     )
     strategies_run = list(strategies) if strategies is not None else default_strategies(bound)
     end = start + time_limit - min(RESERVE_SHARE * time_limit,
@@ -432,6 +449,7 @@ def optimize(
     for attempt in range(1, ATTEMPTS + 1):
         tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt))
         if settle_layout:
+            problem = calibrated(problem, end)
             # A layout at its count over its porosity window: blocks that stick out moved in,
             # before another attempt is weighed (a trim that brings it in saves one).
             tried[-1], trim = trim_repair(problem, tried[-1], rng, attempt, end)
@@ -601,6 +619,8 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     phases = []
     gap: dict[str, Any] = {}
     for strategy in strategies:
+        if settle_layout:
+            problem = calibrated(problem, end)  # a settle timed in the search may need more room
         t0 = clock()
         phase = strategy.run(problem, phase, rng)
         phases.append({"strategy": strategy.name, "attempt": attempt, "seconds": clock() - t0,
@@ -623,7 +643,8 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     # come to rest lower, and what did not stand is out.
     fill = next((s for s in strategies if isinstance(s, PocketFill)), None)
     for _ in range(REFILLS if fill is not None else 0):
-        deadline = end - max(settle_reserve(scene), REFILL_SETTLES * confirmation.seconds)
+        reserve = settle_reserve(scene, meter=problem.meter)
+        deadline = end - max(reserve, REFILL_SETTLES * confirmation.seconds)
         if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
             break
         t0 = clock()
@@ -825,7 +846,7 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     clock, scene = problem.clock, problem.scene
     if not attempt.on_target(problem) or attempt.stable is not True:
         return attempt, None
-    reserve = settle_reserve(scene)
+    reserve = settle_reserve(scene, meter=problem.meter)
     if clock() + coverage_reserve(scene) > problem.deadline - reserve / 2:
         return attempt, None
     t0 = clock()
@@ -863,7 +884,7 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     clock, scene = problem.clock, problem.scene
     if not attempt.reached(problem) or attempt.stable is not True or over(problem, attempt.build) <= 0:
         return attempt, None
-    reserve = settle_reserve(scene)
+    reserve = settle_reserve(scene, meter=problem.meter)
     if clock() + reserve > problem.deadline:
         return attempt, None
     t0 = clock()
@@ -884,7 +905,7 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     (:func:`physics.verdict`) within a settle's reserve before ``end``; else ``attempt``.
     Records in ``phase["stood"]`` whether it stood (None if there was no time)."""
     clock = problem.clock
-    if clock() + settle_reserve(problem.scene) > end:
+    if clock() + settle_reserve(problem.scene, meter=problem.meter) > end:
         return attempt
     t1 = clock()
     result = verdict(problem, build.placed(), rng, movable=judged(build))

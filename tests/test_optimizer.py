@@ -874,3 +874,30 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
         assert chosen == 1 and words == expected + "attempt 1 kept"
     else:
         assert chosen == 0 and words == "attempt 1"
+
+
+
+def test_the_confirming_settles_get_the_time_that_settles_timed_in_the_run_need(tiny, monkeypatch):
+    """Settles of the whole layout far slower than the estimate (a tall mound, a busy machine):
+    the first one timed in the run (the beam's verdict on its layout) brings the search's
+    deadline forward, so that the confirming settles fit in the limit. Without it, the pocket
+    fill went on to the deadline of the estimate, and the run ended 2.96 s past its limit."""
+    import optimizer.search.physics as physics
+
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    charged = physics.settle
+    whole = []
+
+    def slow(scene, placed, *args, **kwargs):
+        movable = kwargs.get("movable")
+        if movable is None or len(movable) > 1:  # a whole layout, not one block let go
+            clock.t += 5.0 * len(placed) / tiny.required_blocks
+            whole.append(len(placed))
+        return charged(scene, placed, *args, **kwargs)
+
+    monkeypatch.setattr(physics, "settle", slow)
+    r = optimize(tiny, seed=3, time_limit=30.0, clock=clock, cover=False)
+    assert r.seconds <= 30.0 + 2.0, f"{clock.drops} drops, whole settles of {whole} blocks"
+    assert r.collisions == 0 and r.out_of_tolerance == 0
+    fill = next(p for p in r.phases if p["strategy"] == "fill")
+    assert fill["seconds"] < 1.0, "the search ended when the settle timed said it must"

@@ -128,7 +128,16 @@ def local_check(problem: Problem, build: Build, candidate: Candidate) -> Candida
 
 def stands(problem: Problem, build: Build) -> bool:
     """Whether a whole build passes the settle verdict (used to rank beam restarts)."""
-    return bool(settle(problem.scene, build.placed(), seed=0).stable)
+    return bool(whole_settle(problem, build.placed(), seed=0).stable)
+
+
+def whole_settle(problem: Problem, placed: list, **options) -> SettleResult:
+    """``settle`` of a whole layout, timed on the problem's clock into ``problem.meter``: what
+    the settles that confirm a layout cost on this machine now."""
+    t0 = problem.now()
+    result = settle(problem.scene, placed, **options)
+    problem.meter.record(len(placed), problem.now() - t0, problem.required)
+    return result
 
 
 def carried_closure(build: Build, keys: set[int]) -> set[int]:
@@ -191,10 +200,10 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
     pass one kick and fail another: only one that passes both is called
     stable.
     """
-    result = settle(problem.scene, placed, seed=int(rng.integers(2**31)), movable=movable)
+    result = whole_settle(problem, placed, seed=int(rng.integers(2**31)), movable=movable)
     if result.stable or result.diverged:
         # Where the engine diverged, another kick may let it answer.
-        again = settle(problem.scene, placed, seed=VERDICT_SEED, movable=movable)
+        again = whole_settle(problem, placed, seed=VERDICT_SEED, movable=movable)
         if not again.stable or result.diverged:
             return again
     return result
@@ -224,7 +233,7 @@ def settled_layout(problem: Problem, build: Build, result: SettleResult, rng: np
     """
     free = [k for k in build.order if k not in build.kept]
     if build.kept:
-        result = settle(problem.scene, build.placed(), seed=int(rng.integers(2**31)), movable=free)
+        result = whole_settle(problem, build.placed(), seed=int(rng.integers(2**31)), movable=free)
     after = build.settled(result.poses)
     bad = {k for k in after.order if k not in after.kept
            and not after.zone.contains(after.poses[k].apply(after.block.vertices)).all()}

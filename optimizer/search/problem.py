@@ -36,6 +36,41 @@ TARGET_POINTS = 1.0
 Clock = Callable[[], float]
 
 
+#: How a settle's cost grows with the blocks in it (benchmarks/results/settle_speed.csv: 75 to
+#: 1000 Shake Blocks on 2 cores, log-log slope 1.15).
+SETTLE_EXPONENT = 1.15
+
+
+@dataclass
+class SettleMeter:
+    """The whole-layout settles timed during a run, for what its confirming settles will cost.
+
+    Only settles of at least half the required count are recorded (a few blocks' settle is
+    mostly fixed cost, and says little about the whole layout's). The slowest rate seen is
+    kept: the confirming settles come at the end, and a machine busy once may be busy again.
+
+    Attributes
+    ----------
+    rate : float or None
+        Seconds a settle took, over ``blocks ** SETTLE_EXPONENT``; None until one is recorded.
+    earliest : float
+        The earliest clock value a search's deadline may be brought forward to (reserves
+        take at most a share of the limit, ``optimizer.api.RESERVE_SHARE``).
+    """
+
+    rate: float | None = None
+    earliest: float = -np.inf
+
+    def record(self, blocks: int, seconds: float, required: int) -> None:
+        if blocks >= max(1, required // 2):
+            rate = seconds / blocks ** SETTLE_EXPONENT
+            self.rate = rate if self.rate is None else max(self.rate, rate)
+
+    def seconds(self, blocks: int) -> float | None:
+        """What one settle of ``blocks`` would take at the slowest rate seen, or None."""
+        return None if self.rate is None else self.rate * blocks ** SETTLE_EXPONENT
+
+
 @dataclass(frozen=True)
 class Problem:
     """What to build.
@@ -59,6 +94,8 @@ class Problem:
     clock : callable
         The clock every deadline is read on (``time.monotonic``); tests
         inject one to check the deadline logic without timing anything.
+    meter : SettleMeter
+        Whole-layout settles timed so far (shared by the copies ``dataclasses.replace`` makes).
     """
 
     scene: Scene
@@ -69,6 +106,7 @@ class Problem:
     deadline: float = field(default_factory=lambda: time.monotonic() + 60.0)
     report: Callable[[str, Build, str], None] | None = None
     clock: Clock = time.monotonic
+    meter: SettleMeter = field(default_factory=SettleMeter, compare=False)
 
     def now(self) -> float:
         return self.clock()
