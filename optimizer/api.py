@@ -99,6 +99,8 @@ SETTLE_FACTOR_ROUGH = 2.5
 SETTLE_FACTOR_WALL = 2.0
 CHECK_SECONDS = (0.3, 0.0005)  # a fixed part, and per block
 COVERAGE_SECONDS_PER_M2 = 0.002
+#: How far past its limit a run may end (a time limit is a promise, kept to within this).
+LIMIT_GRACE = 2.0
 #: Reserves are this many times the estimate (a loaded machine runs slower), and take at
 #: most this share of the limit (a limit too short for the scene places few blocks, whose
 #: settle and checks are quick).
@@ -233,7 +235,8 @@ class OptimizeResult:
     @property
     def valid(self) -> bool:
         return (self.blocks == self.required_blocks and self.collisions == 0
-                and self.out_of_tolerance == 0 and self.stable is not False)
+                and self.out_of_tolerance == 0 and self.stable is not False
+                and self.settle.get("skipped") != "time")
 
     def summary(self) -> str:
         """The result in plain words."""
@@ -257,6 +260,9 @@ class OptimizeResult:
             text += (f"\nthe search placed {self.searched} blocks; the confirming settle took out those "
                      f"that did not stand, with what rested on them, and {self.blocks} stood in the end")
         text += self._not_standing()
+        if self.settle.get("skipped") == "time":
+            text += ("\nthe layout was not settled: one settle of it would not fit in the time limit, "
+                     "so whether it stands is not known; a longer --time-limit settles it")
         if self.shortfall:
             text += f"\n{self.shortfall}"
         if self.coverage is not None:
@@ -636,6 +642,11 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     search_seconds = clock() - start
     if not settle_layout or (all_or_nothing and len(build) < problem.required):
         return _Attempt(build, phases, gap, {}, None, search_seconds, search_seconds=search_seconds)
+    if clock() + settle_reserve(scene, len(build), problem.meter) / RESERVE_MARGIN > end + LIMIT_GRACE:
+        # Not even one verdict fits in the limit (a limit far too short for the kept blocks):
+        # the layout is not settled, and says so, rather than overrun the limit.
+        return _Attempt(build, phases, gap, {"skipped": "time"}, None, search_seconds,
+                        search_seconds=search_seconds)
     searched = len(build)
     build, confirmation = confirm(problem, build, rng, origin, end, whole=all_or_nothing)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the

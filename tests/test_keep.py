@@ -9,6 +9,7 @@ import pytest
 
 from geometry.layout import Layout, Placement, read_layout, write_layout
 from geometry.pose import Pose
+from geometry.scene import load_scene
 from geometry.tolerance import out_of_tolerance
 from optimizer.api import optimize
 from tests.conftest import shoha
@@ -254,3 +255,38 @@ def test_pattern_origin_found_behind_rows_laid_off_it(mini):
 
     assert len(rows) >= 10
     assert max(under(o) for o in kept_origins(problem, build)) == 16
+
+
+def test_a_limit_too_short_to_settle_the_kept_blocks_is_kept_and_said(monkeypatch):
+    """900 kept blocks of ``full`` under a 2 s limit, with a clock that charges a settle of the
+    whole layout what one takes on 2 cores (about 7 s for 900 blocks): the beam does not judge
+    a search that ended past its time, and the layout is written not settled, said so and not
+    valid, within the limit. Before, the beam's verdict and the confirmation ran 21 s past it."""
+    import optimizer.search.physics as physics
+    from optimizer.search.build import Build
+    from optimizer.search.patterns import lattice_for
+    from optimizer.search.problem import Problem
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import pattern_pass
+    from tests.clock import WorkClock
+
+    full = load_scene("full")
+    problem = Problem(full, full.required_blocks, full.target_porosity, lattice_for(full.block, "shake-4t"))
+    laid = pattern_pass(problem, ShapeCache(full.block), Build(full), (0.3, 0.7))
+    keep = [Placement(i, "shake-4t", laid.poses[k]) for i, k in enumerate(laid.order[:900])]
+    clock = WorkClock(per_drop=0.01, per_settle=0.05).install(monkeypatch)
+    charged, whole = physics.settle, []
+
+    def slow(scene, placed, *args, **kwargs):
+        movable = kwargs.get("movable")
+        if movable is None or len(movable) > 1:
+            clock.t += 7.0 * len(placed) / 900
+            whole.append(len(placed))
+        return charged(scene, placed, *args, **kwargs)
+
+    monkeypatch.setattr(physics, "settle", slow)
+    r = optimize(full, seed=1, time_limit=2.0, keep=keep, clock=clock)
+    assert r.seconds <= 2.0 + 2.0, f"whole settles of {whole} blocks"
+    assert r.stable is None and not r.valid and r.settle == {"skipped": "time"}
+    assert "the layout was not settled: one settle of it would not fit in the time limit" in r.summary()
+    assert r.kept["blocks"] == 900 and r.collisions == 0

@@ -340,7 +340,11 @@ class BeamSearch(Strategy):
             result, count = self._search(problem, start, origin, shapes, rng, end)
             tried += count
             runs += 1
-            stands = self.judge(problem, result) if self.judge is not None else True
+            # The verdict ranks restarts and ends them. A first search that ends past the beam's
+            # time has neither to do: 900 kept blocks of ``full`` took 6.5 s to judge after a
+            # search of a 2 s limit that had placed nothing.
+            judge = self.judge is not None and (n > 0 or problem.now() <= end)
+            stands = self.judge(problem, result) if judge else True
             key = (-len(result), not stands, abs(result.porosity.percent - problem.target), n)
             if best is None or key < best[0]:
                 best = (key, result, origin)
