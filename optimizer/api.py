@@ -116,14 +116,28 @@ MEASURED_MARGIN = 1.5
 
 def settle_reserve(scene: Scene, blocks: int | None = None, meter: SettleMeter | None = None) -> float:
     """Seconds kept for the settles that confirm a layout of ``blocks`` (the required count by
-    default; two kicks, ``physics.verdict``; repairs take what time is left): the estimate, or
-    more where the whole-layout settles timed in this run (``meter``) say so."""
+    default; two kicks, ``physics.verdict``; repairs take what time is left): the estimate with
+    its margin, or more where the whole-layout settles timed in this run (``meter``) say so."""
+    estimate, timed = _settle_seconds(scene, blocks, meter)
+    return 2 * max(RESERVE_MARGIN * estimate, MEASURED_MARGIN * (timed or 0.0))
+
+
+def verdict_seconds(scene: Scene, blocks: int, meter: SettleMeter | None = None) -> float:
+    """What one verdict (two settles) of ``blocks`` should take, with no margin: the estimate,
+    or the settles timed in this run where they are slower."""
+    estimate, timed = _settle_seconds(scene, blocks, meter)
+    return 2 * max(estimate, timed or 0.0)
+
+
+def _settle_seconds(scene: Scene, blocks: int | None,
+                    meter: SettleMeter | None) -> tuple[float, float | None]:
+    """One settle of ``blocks`` (the required count by default): the estimate, and what the
+    settles timed in this run make of it (None before one is)."""
     n, pieces = blocks or scene.required_blocks, len(scene.block.pieces)
     ground = max(SETTLE_FACTOR_ROUGH if scene.foundation.kind == "rough" else 1.0,
                  SETTLE_FACTOR_WALL if scene.design.wall_x is not None else 1.0)
-    estimate = 2 * RESERVE_MARGIN * SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5 * ground
-    timed = meter.seconds(n) if meter is not None else None
-    return estimate if timed is None else max(estimate, 2 * MEASURED_MARGIN * timed)
+    estimate = SETTLE_SECONDS_75 * (n / 75) ** SETTLE_EXPONENT * pieces / 5 * ground
+    return estimate, meter.seconds(n) if meter is not None else None
 
 
 def calibrated(problem: Problem, end: float) -> Problem:
@@ -656,7 +670,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         return _Attempt(build, phases, gap, {}, None, search_seconds, search_seconds=search_seconds)
     if end_for is not None:
         end = max(end, end_for(len(build)))
-    if clock() + settle_reserve(scene, len(build), problem.meter) / RESERVE_MARGIN > end + LIMIT_GRACE:
+    if clock() + verdict_seconds(scene, len(build), problem.meter) > end + LIMIT_GRACE:
         # Not even one verdict fits in the limit (a limit far too short for the kept blocks):
         # the layout is not settled, and says so, rather than overrun the limit.
         return _Attempt(build, phases, gap, {"skipped": "time"}, None, search_seconds,
