@@ -861,9 +861,15 @@ def _trim_words(phase: dict[str, Any] | None, adopted: bool) -> str:
     if adopted:
         return (f" ({phase['moved']} of its blocks moved into the design prism took it from "
                 f"{phase['porosity_before_percent']:.2f}%)")
+    again = phase.get("tries", 1) > 1  # the first trim's layout did not stand
     if not phase["moved"]:
-        return "; no block that carries nothing came to rest in a pocket holding more of it inside"
+        return ("; trimmed, it did not stand, and trimmed again, no block that carries nothing came to "
+                "rest in a pocket holding more of it inside" if again else
+                "; no block that carries nothing came to rest in a pocket holding more of it inside")
     fell = ", but then it did not stand" if phase["stood"] is False else ""
+    if again:
+        fell = (", but then it did not stand, nor when trimmed again" if phase["stood"] is False else
+                ", trimmed again after the first trim did not stand, with no time left to settle it")
     return (f"; {phase['moved']} of its blocks moved into the design prism took it to "
             f"{phase['porosity_percent']:.2f}%{fell}")
 
@@ -922,13 +928,12 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     coverage attempt's: meet as many coverage aims as before the trim, and
     then only cover better than the layout it would replace). The trimmed layout, nearer
     the window if not within it, is kept only if it stands when settled again
-    (:func:`_settled_again`). Where it does not, and the trim and its settle fit once more,
-    the untrimmed layout is trimmed again, no block coming to rest near one that did not
-    stand, up to ``TRIM_TRIES`` trims. (On ``mini`` seed 1 the attempt with toe rows, at
-    57.06 %, was trimmed to 57.00 % and did not stand, and was not kept; trimmed again by
-    hand on six random streams it stood five times, and the one that fell stood when trimmed
-    again.) Returns the attempt to keep and the ``trim`` phase (None where nothing was
-    tried), which says how many trims were made (``tries``).
+    (:func:`_settled_again`). Where it does not, and that trim's time is left, the untrimmed
+    layout is trimmed once more with new drops, up to ``TRIM_TRIES`` trims. (On ``mini``
+    seed 1 the attempt with toe rows, at 57.06 %, was trimmed to 57.00 % and did not stand,
+    and was not kept; trimmed once more on the same random stream it stood at 56.97 %.)
+    Returns the attempt to keep and the ``trim`` phase (None where nothing was tried), which
+    says how many trims were made (``tries``).
     """
     clock, scene = problem.clock, problem.scene
     if not attempt.reached(problem) or attempt.stable is not True or over(problem, attempt.build) <= 0:
@@ -939,28 +944,27 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     t0 = clock()
     short = replace(problem, deadline=problem.deadline - reserve / 2)
     phase: dict[str, Any] = {"strategy": "trim", "attempt": number, "seconds": 0.0, "tries": 0}
-    kept, avoid = attempt, np.empty((0, 3))
+    kept = attempt
     for _ in range(TRIM_TRIES):
         t1 = clock()
-        trimmed, stats = trim_moves(short, attempt.build, raised_check, rng, keeps, avoid)
+        trimmed, stats = trim_moves(short, attempt.build, raised_check, rng, keeps)
+        took = clock() - t1
         phase.update(blocks=len(trimmed), **stats.to_dict(), stood=None, tries=phase["tries"] + 1)
-        if not stats.moved:  # nearer the window if not within it: kept if it stands
+        if not stats.moved:
             break
-        fell: list[int] = []
-        kept = _settled_again(problem, attempt, trimmed, rng, end, phase, fell, coverage=None)
-        if kept is not attempt or not fell or clock() + (clock() - t1) > short.deadline:
+        # Nearer the window if not within it: kept if it stands.
+        kept = _settled_again(problem, attempt, trimmed, rng, end, phase, coverage=None)
+        if kept is not attempt or phase["stood"] is not False or clock() + took > short.deadline:
             break
-        avoid = np.vstack([avoid, [trimmed.poses[k].position for k in fell]])
     phase["seconds"] = clock() - t0
     return kept, phase
 
 
 def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.random.Generator, end: float,
-                   phase: dict[str, Any], fell: list[int] | None = None, **changes: Any) -> _Attempt:
+                   phase: dict[str, Any], **changes: Any) -> _Attempt:
     """``attempt`` with ``build`` (and ``changes``) if that stands when settled again
     (:func:`physics.verdict`) within a settle's reserve before ``end``; else ``attempt``.
-    Records in ``phase["stood"]`` whether it stood (None if there was no time), and in
-    ``fell``, where given, the keys of the blocks that did not."""
+    Records in ``phase["stood"]`` whether it stood (None if there was no time)."""
     clock = problem.clock
     if clock() + settle_reserve(problem.scene, meter=problem.meter) > end:
         return attempt
@@ -968,8 +972,6 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     result = verdict(problem, build.placed(), rng, movable=judged(build))
     phase["stood"] = bool(result.stable)
     if not result.stable:
-        if fell is not None:
-            fell.extend(k for k in result.unstable_ids if k in build.poses)
         return attempt
     settle = {**attempt.settle, "stable": True, "max_displacement_m": result.max_displacement_m,
               "max_rotation_deg": result.max_rotation_deg, "unstable": [],

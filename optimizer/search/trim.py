@@ -36,7 +36,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .build import Build, Candidate, fill_window
 from .fill import random_drop
@@ -55,8 +54,6 @@ CHECKS = 12
 PATIENCE = 3
 #: A move must add at least this share of a block's volume inside the prism.
 MIN_GAIN = 0.02
-#: How near, in block heights, a move may not come to rest to a point the caller says to avoid.
-AVOID_H = 0.5
 
 
 @dataclass
@@ -82,25 +79,22 @@ Keep = Callable[[Build], bool]
 
 
 def trim_moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Generator,
-               keeps: Sequence[Keep] = (), avoid: np.ndarray | None = None) -> tuple[Build, TrimStats]:
+               keeps: Sequence[Keep] = ()) -> tuple[Build, TrimStats]:
     """Move free blocks from outside the prism to pockets inside while the porosity is over
     its window; returns a new build (``build`` is not changed).
 
     ``keeps`` are the caller's rules, strictest first: the moves go on under each in turn
     while the porosity is still over its window once the one before has found no more
-    (none: every move is kept). ``avoid`` are points, (n, 3) metres: no block is moved to
-    rest within ``AVOID_H`` block heights of one (where a trim before moved blocks that then
-    did not stand)."""
+    (none: every move is kept)."""
     stats = TrimStats(porosity_before_percent=build.porosity.percent, porosity_percent=build.porosity.percent)
     build = build.copy()
-    shun = cKDTree(avoid) if avoid is not None and len(avoid) else None
     for keep in keeps or [None]:
-        build = _moves(problem, build, accept, rng, keep, stats, shun)
+        build = _moves(problem, build, accept, rng, keep, stats)
     return build, stats
 
 
 def _moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Generator, keep: Keep | None,
-           stats: TrimStats, shun: cKDTree | None = None) -> Build:
+           stats: TrimStats) -> Build:
     """The moves under one of the caller's rules (:func:`trim_moves`): the build after them."""
     block = problem.scene.block
     shapes = ShapeCache(block)
@@ -134,9 +128,6 @@ def _moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Genera
                 stats.tried += 1
                 rested = accept(problem, trial, c)
                 if rested is None or rested.inside < need:
-                    continue
-                if shun is not None and shun.query_ball_point(rested.pose.position,
-                                                              AVOID_H * block.height):
                     continue
                 trial.place(rested)
                 if keep is None or keep(trial):
