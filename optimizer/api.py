@@ -392,7 +392,8 @@ def optimize(
         All randomness comes from ``numpy.random.default_rng(seed)``; the same
         seed gives the same layout, byte for byte, as long as ``time_limit``
         neither cuts the strategies' fixed work short nor decides whether
-        another attempt fits (``ATTEMPTS``).
+        another attempt fits (``ATTEMPTS``), nor whether a trim is made again
+        (``TRIM_TRIES``).
     time_limit : float, seconds, optional
         Wall-clock budget of the whole run, checks included: it is kept to
         within 2 s. The best valid layout found so far is returned when it
@@ -861,16 +862,16 @@ def _trim_words(phase: dict[str, Any] | None, adopted: bool) -> str:
     if adopted:
         return (f" ({phase['moved']} of its blocks moved into the design prism took it from "
                 f"{phase['porosity_before_percent']:.2f}%)")
-    again = phase.get("tries", 1) > 1  # the first trim's layout did not stand
+    # Made again (TRIM_TRIES), the phase's figures are the last trim's: the ones before did not stand.
+    again = "; its first trim did not stand, and in a second" if phase.get("tries", 1) > 1 else ";"
     if not phase["moved"]:
-        return ("; trimmed, it did not stand, and trimmed again, no block that carries nothing came to "
-                "rest in a pocket holding more of it inside" if again else
-                "; no block that carries nothing came to rest in a pocket holding more of it inside")
-    fell = ", but then it did not stand" if phase["stood"] is False else ""
-    if again:
-        fell = (", but then it did not stand, nor when trimmed again" if phase["stood"] is False else
-                ", trimmed again after the first trim did not stand, with no time left to settle it")
-    return (f"; {phase['moved']} of its blocks moved into the design prism took it to "
+        return f"{again} no block that carries nothing came to rest in a pocket holding more of it inside"
+    fell = ""
+    if phase["stood"] is False:
+        fell = ", but then it did not stand" + (" either" if phase.get("tries", 1) > 1 else "")
+    elif phase["stood"] is None:
+        fell = ", with no time left to settle it"
+    return (f"{again} {phase['moved']} of its blocks moved into the design prism took it to "
             f"{phase['porosity_percent']:.2f}%{fell}")
 
 
@@ -928,8 +929,9 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     coverage attempt's: meet as many coverage aims as before the trim, and
     then only cover better than the layout it would replace). The trimmed layout, nearer
     the window if not within it, is kept only if it stands when settled again
-    (:func:`_settled_again`). Where it does not, and that trim's time is left, the untrimmed
-    layout is trimmed once more with new drops, up to ``TRIM_TRIES`` trims. (On ``mini``
+    (:func:`_settled_again`). Where it does not, and that trim's time is left before the
+    trim's own deadline and, with a settle's reserve, before ``end``, the untrimmed layout is
+    trimmed once more with new drops, up to ``TRIM_TRIES`` trims. (On ``mini``
     seed 1 the attempt with toe rows, at 57.06 %, was trimmed to 57.00 % and did not stand,
     and was not kept; trimmed once more on the same random stream it stood at 56.97 %.)
     Returns the attempt to keep and the ``trim`` phase (None where nothing was tried), which
@@ -954,8 +956,9 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
             break
         # Nearer the window if not within it: kept if it stands.
         kept = _settled_again(problem, attempt, trimmed, rng, end, phase, coverage=None)
-        if kept is not attempt or phase["stood"] is not False or clock() + took > short.deadline:
-            break
+        if (kept is not attempt or phase["stood"] is not False or clock() + took > short.deadline
+                or clock() + took + settle_reserve(scene, meter=problem.meter) > end):
+            break  # kept, not settled, or no time for another trim and its settle
     phase["seconds"] = clock() - t0
     return kept, phase
 
