@@ -863,12 +863,13 @@ def _trim_words(phase: dict[str, Any] | None, adopted: bool) -> str:
         return (f" ({phase['moved']} of its blocks moved into the design prism took it from "
                 f"{phase['porosity_before_percent']:.2f}%)")
     # Made again (TRIM_TRIES), the phase's figures are the last trim's: the ones before did not stand.
-    again = "; its first trim did not stand, and in a second" if phase.get("tries", 1) > 1 else ";"
+    twice = phase.get("tries", 1) > 1
+    again = "; its first trim did not stand, and in a second" if twice else ";"
     if not phase["moved"]:
         return f"{again} no block that carries nothing came to rest in a pocket holding more of it inside"
     fell = ""
     if phase["stood"] is False:
-        fell = ", but then it did not stand" + (" either" if phase.get("tries", 1) > 1 else "")
+        fell = ", but then it did not stand" + (" either" if twice else "")
     elif phase["stood"] is None:
         fell = ", with no time left to settle it"
     return (f"{again} {phase['moved']} of its blocks moved into the design prism took it to "
