@@ -495,8 +495,10 @@ def optimize(
         # The attempts keep their own figures (the attempts phase); the repaired layout is written.
         best, moves = cover_repair(problem, best, rng, chosen + 1, end)
         if moves and moves["moved"] and moves["stood"]:
-            moved = (f"moving {moves['moved']} blocks that carried nothing to bare areas took the bare "
-                     f"share from {moves['bare_before_percent']:.1f}% to {moves['bare_share_percent']:.1f}%")
+            n = moves["moved"]
+            moved = (f"moving {n} {'block that' if n == 1 else 'blocks that'} carried nothing to bare areas "
+                     f"took the bare share from {moves['bare_before_percent']:.1f}% to "
+                     f"{moves['bare_share_percent']:.1f}%")
             cover_note = f"{cover_note}; {moved}" if cover_note else moved
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     phases = [p for t in tried for p in t.phases] + ([moves] if moves else [])
