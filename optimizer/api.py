@@ -163,7 +163,8 @@ def coverage_reserve(scene: Scene) -> float:
 
 
 #: Times the pocket fill may go on from a confirmed layout short of its count, and the
-#: confirmations' cost (of the last one) kept free for the one after it.
+#: confirmations' cost (of the last one, less the time it spent laying sites again:
+#: ``Confirmation.relay_seconds``) kept free for the one after it.
 REFILLS = 3
 REFILL_SETTLES = 2.0
 
@@ -686,7 +687,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     fill = next((s for s in strategies if isinstance(s, PocketFill)), None)
     for _ in range(REFILLS if fill is not None else 0):
         reserve = settle_reserve(scene, meter=problem.meter)
-        deadline = end - max(reserve, REFILL_SETTLES * confirmation.seconds)
+        deadline = end - max(reserve, REFILL_SETTLES * (confirmation.seconds - confirmation.relay_seconds))
         if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
             break
         t0 = clock()
