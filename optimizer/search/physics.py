@@ -336,7 +336,8 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
                     break
                 # Kept only whole, it stands without the blocks that ended out of the zone: their
                 # sites are laid again, and the layout kept as it is unless that stands with more.
-                fallback = (build, result)
+                if fallback is None or len(build) > len(fallback[0]):
+                    fallback = (build, result)  # the largest that stood
                 rounds += 1
                 t = problem.now()
                 build = _repaired(problem, build, origin, limit - cost, rng)
