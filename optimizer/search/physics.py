@@ -246,6 +246,12 @@ def _repaired(problem: Problem, build: Build, origin: tuple[float, float] | None
     return beam.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
 
 
+def _repair_fits(rounds: int, left: float, cost: float) -> bool:
+    """Whether one more repair round fits: rounds are left, and ``left`` seconds hold the
+    repair, a verdict of its result (``cost``, a settle, each) and a second of slack."""
+    return rounds < ROUNDS and left > 2 * cost + 1.0
+
+
 def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             origin: tuple[float, float] | None = None, end: float | None = None,
             whole: bool = False) -> tuple[Build, Confirmation]:
@@ -322,7 +328,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             build, result = settled_layout(problem, build, result, rng)
             if result.stable:
                 left = limit - problem.now() - cost
-                if not whole or len(build) == before or rounds >= ROUNDS or left <= 2 * cost + 1.0:
+                if not whole or len(build) == before or not _repair_fits(rounds, left, cost):
                     break
                 # Kept only whole, it stands without the blocks that ended out of the zone: their
                 # sites are laid again, and the layout kept as it is unless that stands with more.
@@ -337,7 +343,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             if not failed:
                 break
         left = limit - problem.now() - cost
-        repair = rounds < ROUNDS and left > 2 * cost + 1.0
+        repair = _repair_fits(rounds, left, cost)
         if not repair and (whole or left < cost):
             # No repair fits. A layout kept only whole is not kept smaller, and with no time for
             # one more verdict (two settles where what is left stands, as the verdict of a layout
