@@ -269,7 +269,7 @@ def main() -> None:
             rows = list(pool.map(lambda job: one(*job), todo))
         order = {(m, s): i for i, (m, s) in enumerate((m, s) for m in ("new", "old") for s in SCENES)}
         rows = sorted(rows + reused, key=lambda r: (order.get((r["method"], r["scene"]), len(order)),
-                                                    int(r["seed"])))
+                                                    r["method"], r["scene"], int(r["seed"])))
     run.csv(stem, rows)
     run.figure(stem, chart(rows, "shoha optimize on the engineer's scenes, default limit, seeds "
                           + ", ".join(map(str, args.seeds))))
