@@ -180,7 +180,9 @@ class Annealing(Strategy):
         return after - before, new_weak
 
     def _stands(self, problem: Problem, build: Build, key: int | None, c: Candidate) -> bool:
-        """Whether the moved or inserted block stays where it was lowered when let go.
+        """Whether the moved or inserted block stays where it was lowered when let go
+        (``accept``; :func:`optimizer.search.physics.raised_check` lets go only a block
+        that rests on others, and keeps one on the foundation alone as lowered).
 
         The moved block's old pose is taken out of the collision world while
         it is let go, so that it does not hold up its own new pose. A move

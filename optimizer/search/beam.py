@@ -173,8 +173,9 @@ class BeamSearch(Strategy):
     accept : callable, optional
         ``accept(problem, build, candidate) -> Candidate | None``: the
         candidate as it comes to rest, or None if it does not
-        (``optimizer.search.physics.raised_check``: a block let go among its
-        fixed neighbours, where it rests on blocks or on rough ground).
+        (``optimizer.search.physics.raised_check``: a block that rests on
+        blocks is let go among its fixed neighbours; one on the foundation
+        alone, flat or rough, is kept as lowered).
     origin : (float, float), optional
         Pattern origin; by default several are ranked by a quick pass of the
         pattern's sites alone, and the search restarts from the best ones.

@@ -13,9 +13,11 @@ the way a crane operator fills the pockets that are left:
 2. rank them by the beam's :func:`optimizer.search.beam.gain` (volume in the
    design prism, low, well supported);
 3. let the best go, one after the other, among their fixed neighbours
-   (``accept``, :func:`optimizer.search.physics.settle_in`): the first that
+   (``accept``, :func:`optimizer.search.physics.raised_check`): the first that
    comes to rest inside the zone is placed where it rests. A loose candidate
-   is valid only if it slid into a pocket.
+   is valid only if it slid into a pocket. (``raised_check`` keeps a drop on
+   the bare foundation, flat or rough, where it touched; the settle of the
+   whole layout judges it.)
 
 A round in which none of the first ``checks`` comes to rest is fruitless; the
 next draws twice as many. ``patience`` fruitless rounds in a row end the step.

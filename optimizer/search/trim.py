@@ -13,8 +13,9 @@ Each move takes one block that carries nothing out, of those holding the most
 volume outside the prism, and lowers it again where it holds more inside:
 ``draws`` random drops over the fill window, in any hanging, ranked by the
 volume they hold inside, the best let go among their fixed neighbours
-(``accept``) until one comes to rest inside the zone with more inside than
-the block held before. The move is kept if ``keep`` accepts the new build (a
+(``accept``; a drop on the bare foundation is kept where it touched) until
+one comes to rest inside the zone with more inside than the block held
+before. The move is kept if ``keep`` accepts the new build (a
 coverage that must stay better than another attempt's). Moves go on, one at a
 time, until the porosity is within ``TARGET_POINTS`` of the target, or
 ``PATIENCE`` rounds in a row find no move (each round draws anew), or the
@@ -24,7 +25,9 @@ The constants were set on three untrimmed ``mini-rough`` layouts (seeds 1-3,
 57.22-57.30 %), trimmed with 4 to 6 seeds each: with 3 blocks a round and
 one round, 2 of 14 trims ended within the window; with 4 blocks and 3
 rounds, 9 of 14, in at most 28 s, 7 of them standing when the whole layout
-was settled again (docs/coverage-study.md).
+was settled again (docs/coverage-study.md). Blocks on the bare rubble were
+then seated, which the search no longer does (stop 52); the constants were
+not set again.
 
 How many moves, blocks, drops and checks there are is fixed, so a seed gives
 one result; the deadline only stops it early.
