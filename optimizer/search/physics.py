@@ -54,8 +54,8 @@ def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candid
     On rubble, a ground block was first seated (let go alone, then lowered
     again on its site turned as it came to rest) and then let go among its
     neighbours. Turned onto the bumps, it left the pattern's next layer no
-    room: on ``mini-rough`` seeds 1-3 the first beam placed 67 of 75 in
-    51-53 s, and two in three of the blocks let go on top of others did not
+    room: on ``mini-rough`` seeds 1-3 the first beam placed 67, 70 and 67
+    of 75 in 51-56 s, and two in three of the blocks let go on top of others did not
     come to rest (976 of 1477 on seed 1). Kept as lowered, the same beam placed
     75 in 35-37 s, with a third not coming to rest (566 of 1599), and each
     layout stood once settled whole (a block or none laid again). On
