@@ -797,7 +797,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     needs = max(best.seconds, needs or 0.0)
     if clock() + needs > problem.deadline:
         return chosen, f"no time was left for an attempt with toe rows first (about {needs:.0f} s)"
-    again = [ToeRows(accept=raised_check)] + [
+    again = [ToeRows()] + [
         s.around_laid().against_wall().covering() if isinstance(s, BeamSearch) else s for s in strategies]
     tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1,
                           all_or_nothing=True))

@@ -235,14 +235,13 @@ def test_pattern_origin_found_behind_rows_laid_off_it(mini):
 
     from optimizer.api import kept_build
     from optimizer.search.patterns import lattice_for
-    from optimizer.search.physics import raised_check
     from optimizer.search.problem import Problem
     from optimizer.search.shapes import ShapeCache
     from optimizer.search.sites import kept_origins, pattern_pass, pattern_sites
     from optimizer.search.toe import ToeRows
 
     problem = Problem(mini, mini.required_blocks, mini.target_porosity, lattice_for(mini.block, "shake-4t"))
-    rows = ToeRows(accept=raised_check).run(problem, None, np.random.default_rng(1)).build
+    rows = ToeRows().run(problem, None, np.random.default_rng(1)).build
     origin = (0.115, 0.735)
     laid = pattern_pass(problem, ShapeCache(mini.block), rows, origin, laid=list(rows.order))
     keep = [Placement(i, "shake-4t", laid.poses[k]) for i, k in enumerate(laid.order[:len(rows) + 16])]

@@ -52,7 +52,7 @@ STRATEGIES = {
     "fill": lambda: PocketFill(accept=raised_check, draws=60, checks=10),
     "anneal": lambda: Annealing(iterations=120),
     "cpsat": lambda: CpSat(origins=1, jitter=1, time_limit=5.0),
-    "toe": lambda: ToeRows(accept=raised_check),
+    "toe": lambda: ToeRows(),
 }
 
 
@@ -188,7 +188,7 @@ def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
 
     mini = load_scene("mini")
     pr = problem(mini)
-    rows = ToeRows(accept=raised_check).run(pr, None, np.random.default_rng(1)).build
+    rows = ToeRows().run(pr, None, np.random.default_rng(1)).build
     assert len(rows) > 0 and not rows.kept
     sites = pattern_sites(pr, (0.0, 0.0))
     # By default only kept blocks count (a settle's repair lays its holes again on their sites).
@@ -217,7 +217,7 @@ def test_toe_rows_take_the_hanging_with_most_inside_among_those_that_reach_the_t
     from optimizer.search.toe import REACH
 
     mini = load_scene("mini")
-    phase = ToeRows(accept=raised_check).run(problem(mini), None, np.random.default_rng(1))
+    phase = ToeRows().run(problem(mini), None, np.random.default_rng(1))
     half = BARE_FRACTION * mini.block.height
     assert all(REACH * half < r <= half for r in phase.stats.reach_m), phase.stats
     assert all(h.startswith("crown") for h in phase.stats.hangings), phase.stats
@@ -230,7 +230,7 @@ def test_toe_rows_stand_on_the_outer_line_all_along():
     from optimizer.search.toe import ROW_STEP
 
     mini = load_scene("mini")
-    phase = ToeRows(accept=raised_check).run(problem(mini), None, np.random.default_rng(1))
+    phase = ToeRows().run(problem(mini), None, np.random.default_rng(1))
     x = np.array([p.pose.position[0] for p in phase.build.layout({}).blocks])
     assert phase.stats.placed == len(x) >= 12
     for side in (1.0, -1.0):
@@ -245,7 +245,7 @@ def test_only_the_beam_around_laid_blocks_leaves_out_their_sites(tiny):
     blocks, so a repair lays the blocks it took out again on their own sites."""
     from optimizer.api import kept_build
 
-    rows = ToeRows(accept=raised_check).run(problem(tiny), None, np.random.default_rng(1)).build
+    rows = ToeRows().run(problem(tiny), None, np.random.default_rng(1)).build
     assert len(rows) > 0
     plain = BeamSearch(restarts=1, origins=3)
     around = plain.around_laid()

@@ -33,7 +33,6 @@ from common import Run  # noqa: E402
 
 from geometry.scene import load_scene  # noqa: I001
 from optimizer.api import default_strategies, optimize
-from optimizer.search.physics import raised_check
 from optimizer.search.toe import ToeRows
 
 SCENES_DIR = Path(__file__).resolve().parents[1] / "scenes"
@@ -48,7 +47,7 @@ def one(job: tuple[str, int, bool]) -> dict:
     """One ``optimize`` run at the default limit, with or without the toe rows first."""
     name, seed, rows = job
     scene = _scene(name)
-    strategies = ([ToeRows(accept=raised_check)] if rows else []) + default_strategies()
+    strategies = ([ToeRows()] if rows else []) + default_strategies()
     r = optimize(scene, seed=seed, strategies=strategies, cover=not rows)
     c = r.coverage or {}
     toe = next((p for p in r.phases if p["strategy"] == "toe"), {})

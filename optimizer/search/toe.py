@@ -31,7 +31,6 @@ two blocks of a row, and the steps are shares of the block height.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -81,21 +80,13 @@ class ToeRows(Strategy):
 
     Parameters
     ----------
-    accept : callable
-        ``accept(problem, build, candidate) -> Candidate | None``, as the pocket
-        fill's: where a row block on the ground is placed.
-        :func:`optimizer.search.physics.raised_check` keeps it as lowered, on
-        rubble too; on ``mini-rough`` (seeds 2 and 3), letting row blocks on
-        rubble go instead did not make the attempt with rows stand whole
-        (70 and 74 of 75 stood, against 66 and 69).
     yaws : int
         Yaws tried per hanging, over one period of its symmetry.
     """
 
     name = "toe"
 
-    def __init__(self, accept: Callable[[Problem, Build, Candidate], Candidate | None], yaws: int = 12):
-        self.accept = accept
+    def __init__(self, yaws: int = 12):
         self.yaws = yaws
 
     def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
@@ -187,8 +178,10 @@ class ToeRows(Strategy):
                 if here is not None and GROUND in here.support and (
                         c is None or side * here.pose.position[0] > side * c.pose.position[0] + step):
                     c = here
-            if c is not None and c.support == (GROUND,):
-                c = self.accept(problem, build, c)
+            # A row block rests on the ground where it touched, as every block on the bare
+            # foundation does in the search (``physics.raised_check``), on rubble too: on
+            # ``mini-rough`` (seeds 2 and 3) letting row blocks on rubble go instead did not make
+            # the attempt with rows stand whole (70 and 74 of 75 stood, against 66 and 69).
             if c is None or GROUND not in c.support:
                 y += 0.5 * width if c is None else step
                 continue
