@@ -336,6 +336,24 @@ def test_a_prefix_is_judged_against_the_reference_at_its_stage(prefixes, scene, 
     assert prefixes[50].coverage.bare_share_percent > reference.coverage.bare_share_percent + 10.0
 
 
+@pytest.mark.parametrize("case, stage", [("nudged", 60), ("tipped-at-60", 60), ("lifted-and-pushed", 45)])
+def test_the_finished_save_is_covered_as_a_whole_measure_says(scene, ref_layout, reference, case, stage):
+    """A score measures the finished save's coverage only near where it differs from the
+    reference (the trainee's own blocks, and the reference blocks they replace): the figures
+    must be those of the whole measure, the bare samples the same ones."""
+    from geometry.coverage import coverage
+
+    save = _faulty_save(scene, ref_layout, case)[:stage]
+    finished, added = reference.finish(save, [])
+    assert added and len(finished) == len(reference.placed)
+    local, whole = reference.coverage_of(finished), coverage(scene, finished)
+    assert local.bare_share_percent == pytest.approx(whole.bare_share_percent, abs=1e-9)
+    assert local.max_bare_m == pytest.approx(whole.max_bare_m, abs=1e-9)
+    assert np.array_equal(local.bare, whole.bare)
+    # The case is one the reference's own figures would get wrong.
+    assert not np.array_equal(whole.bare, reference.coverage.bare)
+
+
 def test_blocks_laid_in_another_order_are_not_charged(scene, ref_layout, reference, prefixes):
     placed = ref_layout.placed()
     held = interlock(placed, scene.foundation).blocks

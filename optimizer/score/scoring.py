@@ -53,7 +53,7 @@ from scipy.spatial import cKDTree
 from geometry.blocks import Block
 from geometry.collision import Collision, collisions
 from geometry.constants import tol
-from geometry.coverage import CoverageReport, coverage
+from geometry.coverage import CoverageReport, coverage, coverage_after
 from geometry.errors import InputError
 from geometry.porosity import exact_filled_volume, porosity
 from geometry.pose import Pose
@@ -317,6 +317,21 @@ class Reference:
             self._coverage = coverage(self.scene, self.placed)
         return self._coverage
 
+    def coverage_of(self, placed: Placed) -> CoverageReport:
+        """Coverage of a layout that shares blocks with the reference: the reference's own,
+        measured again only near the blocks where the two differ (:func:`coverage_after`, same
+        figures as :func:`coverage`). A save finished with the reference's blocks differs from
+        it only where the trainee laid blocks of their own."""
+        placed = list(placed)
+        ours = {_pose_key(block, pose) for _, block, pose in self.placed}
+        theirs = {_pose_key(block, pose) for _, block, pose in placed}
+        put_in = [pose.position for _, block, pose in placed if _pose_key(block, pose) not in ours]
+        taken_out = [pose.position for _, block, pose in self.placed if _pose_key(block, pose) not in theirs]
+        changed = put_in + taken_out
+        if not changed:
+            return self.coverage
+        return coverage_after(self.scene, placed, self.coverage, changed)
+
     def stage(self, blocks: int) -> Stage:
         """The reference after its first ``blocks`` blocks (at most all of them), computed once."""
         n = min(max(0, blocks), len(self.placed))
@@ -406,6 +421,11 @@ def filled_places(placed: Placed, reference: Placed, radius: float) -> dict[int,
             taken.add(i)
             filled[j] = i
     return filled
+
+
+def _pose_key(block: Block, pose: Pose) -> tuple[str, bytes, bytes]:
+    """A block as the coverage sees it: its type and its pose, to the last bit."""
+    return block.name, pose.position.tobytes(), pose.quaternion.tobytes()
 
 
 @dataclass(frozen=True)
@@ -789,7 +809,7 @@ def score(
     if added or left_out:
         finished_porosity = porosity(scene, finished, "exact").percent
         finished_flagged = len(interlock(finished, scene.foundation, rule).flagged)
-        finished_cover = coverage(scene, finished)
+        finished_cover = reference.coverage_of(finished)
     else:
         finished_porosity, finished_flagged, finished_cover = own_porosity, len(held.flagged), own_cover
     measures = Measures(
