@@ -388,7 +388,7 @@ def values() -> dict[str, Any]:
             [
                 [
                     r["save"],
-                    r["score"],
+                    f"{float(r['score']):.1f}",
                     f"{float(r['score_median_s']):.2f}",
                     f"{float(r['settle_s']):.2f}",
                     f"{float(r['cli_wall_s']):.2f}",
