@@ -39,7 +39,7 @@ def test_kept_blocks_are_written_byte_for_byte(tmp_path, partial, how):
         keep.write_text(json.dumps(to_unity_save(read_layout(partial), (0.0, 0.0, 0.0))))
     out = tmp_path / "out.json"
     d = _json(shoha("optimize", "mini", "--keep", str(keep), "--out", str(out), "--seed", "1",
-                    "--time-limit", "30", "--json"))
+                    "--time-limit", "15", "--json"))
     written = json.loads(out.read_text())["blocks"]
     given = json.loads(partial.read_text())["blocks"]
     assert [json.dumps(b, sort_keys=True) for b in written[:30]] == [json.dumps(b, sort_keys=True)
@@ -64,7 +64,7 @@ def test_invalid_kept_blocks_stay_and_are_reported(mini):
     out = Placement(101, "shake-4t", Pose([zone.bottom_half_width - 0.2, y, z], outer.pose.quaternion))
     assert out_of_tolerance([(101, mini.block, out.pose)], zone)  # the case is what it says
     keep = [a, twin, out]
-    result = optimize(mini, seed=2, time_limit=40, keep=keep)
+    result = optimize(mini, seed=2, time_limit=20, keep=keep)
     kept = result.kept
     assert kept["blocks"] == 3
     assert set(kept["colliding"]) == {a.id, 100}
