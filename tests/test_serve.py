@@ -456,6 +456,35 @@ def test_open_shows_the_view_in_the_browser(tmp_path):
         assert http.get("/view", follow_redirects=False).headers["location"] == f"/sessions/{sid}/view"
 
 
+def test_json_says_where_it_listens_once_it_answers():
+    """``--json``, which every command takes: one JSON object on stdout, written once the service
+    answers, naming where; nothing more on stdout after it."""
+    import shutil
+    import socket
+    import subprocess
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
+    proc = subprocess.Popen([exe, "serve", "--json", "--port", str(port), "--reference", str(REFERENCE),
+                             "--reference-time-limit", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        line = proc.stdout.readline()  # blocks until the line is written (flushed) or the process ends
+        said = json.loads(line)
+        url = f"http://127.0.0.1:{port}"
+        assert said == {"url": url, "host": "127.0.0.1", "port": port, "view": f"{url}/view",
+                        "scenes": sorted(said["scenes"]), "token_required": False}
+        assert "mini" in said["scenes"]
+        assert httpx.get(f"{url}/healthz", timeout=5.0).status_code == 200
+    finally:
+        proc.terminate()
+        out, err = proc.communicate(timeout=30)
+    assert out == "", out
+    assert f"scenes on {url}" in err
+
+
 def test_score_is_shoha_score(http, saves, tmp_path):
     save = unity_save(saves["faulty"])
     path = tmp_path / "save.json"

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 
 import click
 
 from geometry.errors import InputError
+
+from .common import json_option
 
 #: The one host that needs no --token (docs/contract.md, "shoha serve").
 LOCAL_HOST = "127.0.0.1"
@@ -36,16 +39,21 @@ LOCAL_HOST = "127.0.0.1"
               help="Seconds after which an unused session is forgotten.")
 @click.option("--open", "open_view", is_flag=True,
               help="Open the live view (/view: the session started last) in the default browser.")
+@json_option
 def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: str, port: int,
               token: str | None, cors: tuple[str, ...], reference_time_limit: float | None,
               replan_time_limit: float | None, max_sessions: int,
-              idle_timeout: float, open_view: bool) -> None:
+              idle_timeout: float, open_view: bool, as_json: bool) -> None:
     """Serve live checks of a trainee's blocks over HTTP and WebSocket.
 
     Serves the built-in scenes and every SCENE_FILE. A scene's reference is
     the --reference layout that names it; without one it is optimized in the
     background (seed 0) and cached, and the answers say "reference": null
     until it is ready. Open http://HOST:PORT/sessions/ID/view to watch a session.
+
+    Once it listens it says where, on stderr; with --json also as one JSON
+    object on stdout (url, host, port, view, scenes, token_required), which a
+    launcher can wait for. It then serves until stopped.
     """
     if host != LOCAL_HOST and not token:
         raise InputError(f"--host {host}: any host but {LOCAL_HOST} needs --token, "
@@ -74,11 +82,18 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
     service = Service(scenes, list(references), reference_seconds=reference_time_limit,
                       replan_seconds=replan_time_limit, max_sessions=max_sessions, idle_s=idle_timeout)
     logging.basicConfig(level=logging.WARNING, format="shoha serve: %(message)s")
-    url = f"http://{host}:{port}"
-    click.echo(f"shoha serve: {len(service.scenes)} scenes on {url}; the live view is {url}/view", err=True)
-    if open_view:
-        threading.Thread(target=_open_when_up, args=(host, port, token), daemon=True).start()
-    run(service, host, port, token, cors)
+
+    def listening(bound: int) -> None:
+        url = f"http://{host}:{bound}"
+        click.echo(f"shoha serve: {len(service.scenes)} scenes on {url}; the live view is {url}/view",
+                   err=True)
+        if as_json:
+            click.echo(json.dumps({"url": url, "host": host, "port": bound, "view": f"{url}/view",
+                                   "scenes": sorted(service.scenes), "token_required": token is not None}))
+        if open_view:
+            threading.Thread(target=_open_when_up, args=(host, bound, token), daemon=True).start()
+
+    run(service, host, port, token, cors, listening=listening)
 
 
 def _check_listen(host: str, port: int) -> None:

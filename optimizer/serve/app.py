@@ -340,14 +340,24 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
                      exception_handlers={404: not_found, 405: not_allowed, Exception: failure})
 
 
-def run(service: Service, host: str, port: int, token: str | None, cors: tuple[str, ...]) -> None:
-    """Serve until interrupted (uvicorn with uvloop and httptools where installed)."""
+def run(service: Service, host: str, port: int, token: str | None, cors: tuple[str, ...],
+        listening: Callable[[int], None] | None = None) -> None:
+    """Serve until interrupted (uvicorn with uvloop and httptools where installed).
+
+    ``listening(port)`` is called once the sockets are bound and the service answers.
+    """
     import uvicorn
+
+    class Server(uvicorn.Server):
+        async def startup(self, sockets: list | None = None) -> None:
+            await super().startup(sockets)
+            if self.started and listening is not None:
+                listening(int(self.servers[0].sockets[0].getsockname()[1]))
 
     app = build_app(service, token=token, local=host == "127.0.0.1", port=port, cors=cors)
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
                             ws_max_size=64 * 1024, lifespan="on", timeout_graceful_shutdown=2)
-    server = uvicorn.Server(config)
+    server = Server(config)
     started = time.perf_counter()
     server.run()
     log.info("served for %.0f s", time.perf_counter() - started)
