@@ -85,16 +85,29 @@ class Layout:
         Unknown top-level keys of the file, kept for writing back.
     base_dir : str or None
         Folder of the file it was read from; relative paths resolve here.
+    source : str or None
+        The file it was read from, named in messages about it.
     """
 
     scene: str
     blocks: list[Placement] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)
     base_dir: str | None = None
+    source: str | None = field(default=None, compare=False)
 
     def load_scene(self, override: str | None = None) -> Scene:
-        """The layout's scene, or ``override`` (a ``--scene`` option) when given."""
-        return load_scene(override if override is not None else self.scene, self.base_dir)
+        """The layout's scene, or ``override`` (a ``--scene`` option) when given.
+
+        A scene the file names that does not load is reported as the file's fault, naming it.
+        """
+        if override is not None:
+            return load_scene(override, self.base_dir)
+        try:
+            return load_scene(self.scene, self.base_dir)
+        except InputError as exc:
+            if self.source is None:
+                raise
+            raise InputError(f"{self.source}: {exc}") from None
 
     def placed(self) -> list[tuple[int, Block, Pose]]:
         """``(id, Block, Pose)`` for every block, in installation order."""
@@ -184,7 +197,7 @@ def layout_from_dict(data: Any, source: str, base_dir: str | None) -> Layout:
     if "elapsed_s" in extra:
         check_elapsed(extra["elapsed_s"], placements, source)
     refuse_crowded(placements, base_dir, source)
-    return Layout(scene, placements, extra, base_dir)
+    return Layout(scene, placements, extra, base_dir, source)
 
 
 #: Most block types (names) in one layout or save: a breakwater's are one or two.

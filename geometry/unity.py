@@ -108,7 +108,7 @@ def read_unity_save(
         check_elapsed(data["elapsed_s"], placements, source)
         extra["elapsed_s"] = data["elapsed_s"]
     refuse_crowded(placements, base_dir, source)
-    return Layout(scene, placements, extra, base_dir)
+    return Layout(scene, placements, extra, base_dir, source)
 
 
 def _fields(value: Any, names: str, what: str, where: str) -> dict[str, float]:

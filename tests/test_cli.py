@@ -157,7 +157,9 @@ def _assert_bad(r, name_in_message):
 def test_bad_layouts_exit_2_with_one_line(tmp_path, case, verb):
     path = tmp_path / "bad.json"
     path.write_text(BAD_LAYOUTS[case])
-    _assert_bad(shoha(verb, str(path), "--json"), "bad.json" if case != "unknown scene" else "atlantis")
+    # The message names the file, and for a scene it names that does not load, the scene too.
+    _assert_bad(shoha(verb, str(path), "--json"),
+                "bad.json" if case != "unknown scene" else "bad.json: atlantis: no such scene")
 
 
 def test_missing_file_exits_2(tmp_path):
@@ -275,6 +277,9 @@ def test_bad_save_writes_nothing(tmp_path):
     (["convert", "s.json", "--out", "o.json"], "--from"),
     (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1,2"], "origin"),
     (["convert", "s.json", "--from", "unity", "--out", "o.json", "--origin", "1_0,2,3"], "origin"),
+    (["convert", "s.json", "--from", "unity", "--out", "o.json", "--block", "dolos"],
+     "--block dolos: unknown block type"),
+    (["score", "s.json", "--reference", "s.json", "--block", "mesh:none.stl"], "--block mesh:"),
     (["frobnicate"], "frobnicate"),
     # How to read a kept save, with no save to keep: taken and ignored, exit 0.
     (["optimize", "mini", "--out", "o.json", "--origin", "1,2,3"], "--origin: says how to read the --keep"),
@@ -382,7 +387,7 @@ def test_a_name_with_a_newline_is_shown_escaped_on_its_one_line(tmp_path):
     path = tmp_path / "bad.json"
     path.write_text(_layout_text().replace('"mini"', '"mi\\nni\\u0000"'))
     r = shoha("check", str(path))
-    _assert_bad(r, "mi\\nni\\x00: no such scene")
+    _assert_bad(r, "bad.json: mi\\nni\\x00: no such scene")
 
 
 def test_a_relative_mesh_block_on_the_command_line_is_the_working_folders(tmp_path):

@@ -86,7 +86,13 @@ def block_from_cwd(ctx: click.Context, param: click.Parameter, value: str) -> st
     folder's (docs/contract.md), made absolute here; a save's own block types are resolved
     from the save's folder, and ``--block`` was too."""
     if value.startswith("mesh:") and not Path(value[5:]).expanduser().is_absolute():
-        return "mesh:" + str(Path.cwd() / Path(value[5:]).expanduser())
+        value = "mesh:" + str(Path.cwd() / Path(value[5:]).expanduser())
+    from geometry.blocks import get_block
+
+    try:
+        get_block(value)  # a bad --block is the option's fault, whatever the save holds
+    except InputError as exc:
+        raise InputError(f"{param.opts[0]} {value}: {exc}") from None
     return value
 
 
