@@ -87,10 +87,16 @@ def block_from_cwd(ctx: click.Context, param: click.Parameter, value: str) -> st
     from the save's folder, and ``--block`` was too."""
     if value.startswith("mesh:") and not Path(value[5:]).expanduser().is_absolute():
         value = "mesh:" + str(Path.cwd() / Path(value[5:]).expanduser())
-    from geometry.blocks import get_block
+    # A bad --block is the option's fault, whatever the save holds. A mesh is only looked for
+    # here: reading and cutting it is the command's work, within its time limit where it has one.
+    from geometry.blocks import get_block, mesh_path
 
+    path = mesh_path(value)
     try:
-        get_block(value)  # a bad --block is the option's fault, whatever the save holds
+        if path is None:
+            get_block(value)
+        elif not path.is_file():
+            raise InputError(f"{path}: no such file" if not path.exists() else f"{path}: not a file")
     except InputError as exc:
         raise InputError(f"{param.opts[0]} {value}: {exc}") from None
     return value
