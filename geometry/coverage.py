@@ -303,7 +303,7 @@ class CoverageReport:
             on = self.samples.face == i
             if on.any():
                 area = self.samples.area[on]
-                out[name] = float(100.0 * area[self.bare[on]].sum() / area.sum())
+                out[name] = percent_of(area[self.bare[on]].sum(), area.sum())
         return out
 
 
@@ -377,9 +377,15 @@ def _near(placed: Placed, centres: np.ndarray, points: np.ndarray, reach: float)
     return [p for p, h in zip(placed, hit, strict=True) if h]
 
 
+def percent_of(part: float, whole: float) -> float:
+    """``part`` as a percentage of ``whole``, a sum it is part of: 100 exactly when it is all of it
+    (``100 * a / a`` came to 100.00000000000001 on ``mini``), never more."""
+    return min(100.0, 100.0 * float(part / whole))
+
+
 def _report(samples: SurfaceSamples, limit: float, dist: np.ndarray) -> CoverageReport:
     bare = dist > limit
-    share = float(100.0 * samples.area[bare].sum() / samples.area.sum())
+    share = percent_of(samples.area[bare].sum(), samples.area.sum())
     worst = int(np.argmax(dist))
     return CoverageReport(share, float(dist[worst]), tuple(float(v) for v in samples.points[worst]),
                           float(limit), samples.spacing, bare, samples, dist)

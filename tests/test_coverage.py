@@ -68,9 +68,13 @@ def test_a_known_bare_patch(boxes):
     assert faces["crest"] == 0.0 and faces["seaward slope"] == pytest.approx(50.0, abs=3.0)
 
 
-def test_no_blocks_is_all_bare(boxes):
-    c = coverage(boxes, [])
-    assert c.bare_share_percent == 100.0
+@pytest.mark.parametrize("scene_name", ["boxes", "mini"])
+def test_no_blocks_is_all_bare(boxes, scene_name):
+    from geometry.scene import load_scene
+
+    c = coverage(boxes if scene_name == "boxes" else load_scene(scene_name), [])
+    assert c.bare_share_percent == 100.0  # exactly: 100.00000000000001 on mini once
+    assert all(v == 100.0 for v in c.by_face().values())
     assert c.to_dict()["max_bare_m"] is None and c.to_dict()["worst_point"] is None
 
 
