@@ -391,6 +391,24 @@ def _report(samples: SurfaceSamples, limit: float, dist: np.ndarray) -> Coverage
                           float(limit), samples.spacing, bare, samples, dist)
 
 
+def _reaching(pts: np.ndarray, placed: Placed) -> Placed:
+    """The blocks that may be the nearest to one of ``pts``; the others change no distance.
+
+    Every point lies within ``U`` (its nearest centroid, plus a bounding radius R) of a
+    block, and a block whose centroid is further than ``U + 2 R`` from every point is
+    further than that from each of them. 10 000 blocks laid 3 m apart over a square
+    kilometre, around a mound of 300 m^3, put 10 million samples into one search: 15 s.
+    """
+    centres = np.array([pose.position for _, _, pose in placed])
+    radius = max(block.bounding_radius for _, block, _ in placed)
+    nearest, _ = cKDTree(centres).query(pts)
+    reach = float(nearest.max()) + 2.0 * radius
+    away, _ = cKDTree(pts).query(centres, distance_upper_bound=reach * (1.0 + 1e-9) + 1e-9)
+    if np.isfinite(away).all():
+        return placed
+    return [p for p, d in zip(placed, away, strict=True) if np.isfinite(d)]
+
+
 def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact: bool = False,
                due: tuple[float, Callable[[], float]] | None = None) -> np.ndarray:
     """Each point's distance to the nearest block: exact where it decides the point is bare, and
@@ -402,6 +420,7 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
             raise TimeUp("the coverage was not measured by its deadline")
 
     dist = np.full(len(pts), np.inf)
+    placed = _reaching(pts, placed) if placed and len(pts) else placed
     if placed and len(pts):
         # A block is sampled no finer than its own H / CELLS_PER_H: a layout of Shake Blocks
         # checked against a scene of 5 cm tetrapods put 47 000 samples on each (30 s, 670 MB).

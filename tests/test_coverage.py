@@ -68,6 +68,28 @@ def test_a_known_bare_patch(boxes):
     assert faces["crest"] == 0.0 and faces["seaward slope"] == pytest.approx(50.0, abs=3.0)
 
 
+def test_blocks_far_from_the_mound_change_nothing_and_are_left_out(boxes):
+    """The crest row of the known bare patch, with 400 cubes 30-90 m away: the same figures, and
+    the search leaves the far cubes out (10 000 blocks spread over a square kilometre took 15 s).
+    A cube just off the toe, which does change the figures, is kept."""
+    from geometry.coverage import _reaching
+
+    cube = boxes.block
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    row = [(k, cube, Pose([x, y, 0.5], q)) for k, (x, y) in
+           enumerate((x, y) for x in (-1.5, -0.5, 0.5, 1.5) for y in (0.5, 1.5, 2.5, 3.5))]
+    far = [(100 + k, cube, Pose([30.0 + 3 * (k % 20), 3.0 * (k // 20), 0.5], q)) for k in range(400)]
+    near_toe = [(999, cube, Pose([3.2, 2.0, 0.5], q))]
+    alone, crowded = coverage(boxes, row), coverage(boxes, row + far)
+    assert crowded.bare_share_percent == alone.bare_share_percent
+    assert crowded.max_bare_m == alone.max_bare_m and crowded.worst_point == alone.worst_point
+    assert np.array_equal(crowded.bare, alone.bare)
+    points = surface_samples(boxes).points
+    assert _reaching(points, row + far) == row
+    assert _reaching(points, row + far + near_toe) == row + near_toe
+    assert coverage(boxes, row + far + near_toe).bare_share_percent < alone.bare_share_percent
+
+
 @pytest.mark.parametrize("scene_name", ["boxes", "mini"])
 def test_no_blocks_is_all_bare(boxes, scene_name):
     from geometry.scene import load_scene
