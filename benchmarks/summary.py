@@ -120,7 +120,7 @@ def generality_runs(gr: list[dict[str, str]], machine: dict) -> str:
             scenes.append(r["scene"])
     parts = []
     for label, methods in runs.items():
-        what = "; ".join(f"the *{m}* rows of {', '.join(scenes)}" for m, scenes in methods.items())
+        what = " and ".join(f"the *{m}* rows of {', '.join(scenes)}" for m, scenes in methods.items())
         parts.append(f"{what} at shoha {label}")
     return ("; ".join(parts) + f"; {machine.get('cores', '?')} cores, 1-minute load "
             f"{(machine.get('load_average') or ['?'])[0]} at the start of the last run")
