@@ -354,6 +354,27 @@ def test_the_finished_save_is_covered_as_a_whole_measure_says(scene, ref_layout,
     assert not np.array_equal(whole.bare, reference.coverage.bare)
 
 
+def test_a_finished_save_without_a_block_as_large_as_one_it_replaced_is_measured_whole():
+    """A save of 1 m cubes where the reference has one 8 m slab: the incremental measure reached
+    only as far as the cube, and gave 2.2 % bare against the whole measure's 86 %."""
+    from geometry.blocks import get_block
+    from geometry.coverage import coverage
+    from geometry.pose import Pose
+    from geometry.scene import parse_scene
+    from tests.test_coverage import BOX_TOML
+
+    boxes = parse_scene(BOX_TOML, "boxes.toml", None)
+    q = np.array([1.0, 0.0, 0.0, 0.0])
+    ref = Reference(scene=boxes, placed=[(0, get_block("box:8x4x1"), Pose([0.0, 2.0, 0.5], q))],
+                    porosity_percent=0.0, flagged=[], zones=[], out_of_tolerance=0, collisions=0,
+                    slices=1, layers=1)
+    save = [(1, boxes.block, Pose([0.0, 2.0, 0.5], q))]
+    local, whole = ref.coverage_of(save), coverage(boxes, save)
+    assert whole.bare_share_percent > ref.coverage.bare_share_percent + 50.0  # the case is what it says
+    assert local.bare_share_percent == pytest.approx(whole.bare_share_percent, abs=1e-9)
+    assert local.max_bare_m == pytest.approx(whole.max_bare_m, abs=1e-9)
+
+
 def test_blocks_laid_in_another_order_are_not_charged(scene, ref_layout, reference, prefixes):
     placed = ref_layout.placed()
     held = interlock(placed, scene.foundation).blocks
