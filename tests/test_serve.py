@@ -471,7 +471,11 @@ def test_json_says_where_it_listens_once_it_answers():
                              "--reference-time-limit", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
-        line = proc.stdout.readline()  # blocks until the line is written (flushed) or the process ends
+        import select
+
+        ready, _, _ = select.select([proc.stdout], [], [], 60.0)
+        assert ready, "shoha serve --json said nothing on stdout in 60 s"
+        line = proc.stdout.readline()  # written (and flushed) once it listens, or "" if it ended
         said = json.loads(line)
         url = f"http://127.0.0.1:{port}"
         assert said == {"url": url, "host": "127.0.0.1", "port": port, "view": f"{url}/view",

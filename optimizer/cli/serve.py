@@ -84,7 +84,10 @@ def serve_cmd(scene_files: tuple[str, ...], references: tuple[str, ...], host: s
     logging.basicConfig(level=logging.WARNING, format="shoha serve: %(message)s")
 
     def listening(bound: int) -> None:
-        url = f"http://{host}:{bound}"
+        # An IPv6 literal goes in brackets; an empty host listens on every interface, of which
+        # this machine's own is the one to name.
+        shown = f"[{host}]" if ":" in host else host or "127.0.0.1"
+        url = f"http://{shown}:{bound}"
         click.echo(f"shoha serve: {len(service.scenes)} scenes on {url}; the live view is {url}/view",
                    err=True)
         if as_json:

@@ -49,6 +49,7 @@ from starlette.routing import Route, WebSocketRoute
 from starlette.types import ASGIApp, Receive, Scope, Send
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
+from geometry.errors import one_line
 from geometry.fileio import ascii_digits
 
 from .bodies import MAX_BODY_BYTES, BodyError, parse_json
@@ -352,7 +353,12 @@ def run(service: Service, host: str, port: int, token: str | None, cors: tuple[s
         async def startup(self, sockets: list | None = None) -> None:
             await super().startup(sockets)
             if self.started and listening is not None:
-                listening(int(self.servers[0].sockets[0].getsockname()[1]))
+                try:
+                    listening(int(self.servers[0].sockets[0].getsockname()[1]))
+                except Exception as exc:  # stdout closed (``| true``), say: shut down as on a signal
+                    why = one_line(str(exc) or repr(exc))
+                    log.warning("stopping: could not say where it listens (%s)", why)
+                    self.should_exit = True
 
     app = build_app(service, token=token, local=host == "127.0.0.1", port=port, cors=cors)
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
