@@ -1,11 +1,11 @@
 """``shoha optimize`` on the engineer's scenes, the method before issue 24 beside today's.
 
 Each scene of issue 24's table, and the built-in two-layer ``tetrapod`` of its
-item 3 (``SCENES``: built in, or a file under ``benchmarks/scenes/``) is optimized with seeds 1, 2 and 3 at the default time
-limit, as a user runs it: ``shoha optimize SCENE --seed N --out F --json``, one
-process each, with a cache folder of its own (``SHOHA_CACHE``), so that the
-first run of a new block pays for its decomposition and its tuning as on a
-clean clone.
+item 3 (``SCENES``: built in, or a file under ``benchmarks/scenes/``) is optimized
+with seeds 1, 2 and 3 at the default time limit, as a user runs it:
+``shoha optimize SCENE --seed N --out F --json``, one process each, with a cache
+folder of its own (``SHOHA_CACHE``), so that the first run of a new block pays for
+its decomposition and its tuning as on a clean clone.
 
 * ``new``: this checkout;
 * ``old``: the optimizer at ``OLD_COMMIT`` (the last commit before issue 24's
