@@ -268,6 +268,10 @@ class CoverageReport:
         Each sample's distance to the nearest block, exact where it decides
         whether the sample is bare or where it is near the largest
         (:func:`coverage_after` starts from it).
+    radius_m : float
+        The largest bounding radius of the blocks measured: how far from a block's centroid
+        a sample it was nearest to may lie (:func:`coverage_after` reaches that far from a
+        block taken out).
     """
 
     bare_share_percent: float
@@ -278,6 +282,7 @@ class CoverageReport:
     bare: np.ndarray
     samples: SurfaceSamples
     distance: np.ndarray | None = None
+    radius_m: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         """The ``coverage`` object of ``shoha check --json`` (docs/contract.md)."""
@@ -323,7 +328,8 @@ def coverage(scene: Scene, placed: Placed, spacing: float | None = None,
     """
     samples = surface_samples(scene, spacing)
     limit = BARE_FRACTION * scene.block.height
-    return _report(samples, limit, _distances(samples.points, placed, samples.spacing, limit,
+    return _report(samples, limit, _largest_radius(placed),
+                   _distances(samples.points, placed, samples.spacing, limit,
                                               due=None if deadline is None else (deadline, clock)))
 
 
@@ -334,16 +340,20 @@ def coverage_after(scene: Scene, placed: Placed, before: CoverageReport, changed
     measured again only near them.
 
     Only a sample whose nearest block was taken out, and so lay within ``before.max_bare_m``
-    and a bounding radius of its centroid, or that a block put in comes nearer to than its
-    nearest before, can change: those within that reach of a changed centroid are measured
-    again, against the blocks near them. The reach has a sampling cell more: a sample's
-    distance kept from ``before`` may be the bound, up to a cell over the true one.
+    and a bounding radius of its centroid (the largest of either layout's blocks), or that
+    a block put in comes nearer to than its nearest before, can change: those within that
+    reach of a changed centroid are measured again, against the blocks near them. The reach
+    has a sampling cell more: a sample's distance kept from ``before`` may be the bound, up to
+    a cell over the true one.
     """
     if before.distance is None or not math.isfinite(before.max_bare_m) or not placed:
         return coverage(scene, placed, before.spacing_m)
     samples = before.samples
     limit = before.bare_distance_m
-    radius = max(block.bounding_radius for _, block, _ in placed)
+    # A block taken out was one of ``before``'s: its samples lay within its radius, which may be
+    # larger than any block left (1 m cubes in place of an 8 m slab kept the slab's distances).
+    own = _largest_radius(placed)
+    radius = max(own, before.radius_m)
     reach = before.max_bare_m + radius + samples.spacing
     tree = cKDTree(samples.points)
     idx = np.unique(np.concatenate([np.asarray(tree.query_ball_point(c, reach), dtype=int) for c in changed]))
@@ -368,12 +378,12 @@ def coverage_after(scene: Scene, placed: Placed, before: CoverageReport, changed
         dist[top] = _distances(pts, _near(placed, centres, pts, float(dist[top].max()) + radius),
                                samples.spacing, limit, exact=True)
         exact[top] = True
-    return _report(samples, limit, dist)
+    return _report(samples, limit, own, dist)
 
 
 def _near(placed: Placed, centres: np.ndarray, points: np.ndarray, reach: float) -> list:
     """The blocks whose centroids lie within ``reach`` of any of ``points``."""
-    hit = cKDTree(points).query_ball_point(centres, reach)
+    hit = cKDTree(points).query_ball_point(centres, reach, return_length=True)
     return [p for p, h in zip(placed, hit, strict=True) if h]
 
 
@@ -383,12 +393,16 @@ def percent_of(part: float, whole: float) -> float:
     return min(100.0, 100.0 * float(part / whole))
 
 
-def _report(samples: SurfaceSamples, limit: float, dist: np.ndarray) -> CoverageReport:
+def _largest_radius(placed: Placed) -> float:
+    return max((block.bounding_radius for _, block, _ in placed), default=0.0)
+
+
+def _report(samples: SurfaceSamples, limit: float, radius: float, dist: np.ndarray) -> CoverageReport:
     bare = dist > limit
     share = percent_of(samples.area[bare].sum(), samples.area.sum())
     worst = int(np.argmax(dist))
     return CoverageReport(share, float(dist[worst]), tuple(float(v) for v in samples.points[worst]),
-                          float(limit), samples.spacing, bare, samples, dist)
+                          float(limit), samples.spacing, bare, samples, dist, radius)
 
 
 def _reaching(pts: np.ndarray, placed: Placed) -> Placed:
@@ -400,13 +414,8 @@ def _reaching(pts: np.ndarray, placed: Placed) -> Placed:
     kilometre, around a mound of 300 m^3, put 10 million samples into one search: 15 s.
     """
     centres = np.array([pose.position for _, _, pose in placed])
-    radius = max(block.bounding_radius for _, block, _ in placed)
     nearest, _ = cKDTree(centres).query(pts)
-    reach = float(nearest.max()) + 2.0 * radius
-    away, _ = cKDTree(pts).query(centres, distance_upper_bound=reach * (1.0 + 1e-9) + 1e-9)
-    if np.isfinite(away).all():
-        return placed
-    return [p for p, d in zip(placed, away, strict=True) if np.isfinite(d)]
+    return _near(placed, centres, pts, float(nearest.max()) + 2.0 * _largest_radius(placed))
 
 
 def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact: bool = False,
