@@ -219,18 +219,21 @@ def refuse_crowded(placements: list[Placement], base_dir: str | None, source: st
     file grows with the square of its count (300 copies of one pose took ``shoha check`` 13 s,
     and 100 000 ran it out of memory). Callers count the types first (:func:`check_type_count`),
     before any is built."""
+    kinds = list(dict.fromkeys(p.type for p in placements))  # counted by the caller (check_type_count)
+    blocks = {kind: get_block(kind, base_dir) for kind in kinds}
+    refuse_crowded_blocks([(p.id, blocks[p.type], p.pose.position) for p in placements], source)
+
+
+def refuse_crowded_blocks(blocks: list[tuple[int, Any, np.ndarray]], source: str) -> None:
+    """:func:`refuse_crowded` of blocks already built: ``(id, block, position)`` each."""
     from .checks import check_not_crowded, check_not_crowded_across  # they pull in FCL and manifold3d
 
-    kinds = list(dict.fromkeys(p.type for p in placements))  # counted by the caller (check_type_count)
     # Grouped by shape, not by name: tetrapod:2 and tetrapod:02 are one block.
-    blocks = {kind: get_block(kind, base_dir) for kind in kinds}
-    shape = {kind: (round(b.volume, 9), round(b.bounding_radius, 9)) for kind, b in blocks.items()}
-    shapes: dict[tuple[float, float], tuple[Any, list[Placement]]] = {}
-    for kind in kinds:
-        shapes.setdefault(shape[kind], (blocks[kind], []))
-    for p in placements:
-        shapes[shape[p.type]][1].append(p)
-    groups = [(block, np.array([p.pose.position for p in group]).reshape(-1, 3), [p.id for p in group])
+    shapes: dict[tuple[float, float], tuple[Any, list[tuple[int, np.ndarray]]]] = {}
+    for key, block, position in blocks:
+        shape = (round(block.volume, 9), round(block.bounding_radius, 9))
+        shapes.setdefault(shape, (block, []))[1].append((key, position))
+    groups = [(block, np.array([pos for _, pos in group]).reshape(-1, 3), [key for key, _ in group])
               for block, group in shapes.values()]
     for group in groups:
         check_not_crowded(*group, source)

@@ -31,7 +31,13 @@ import numpy as np
 from geometry.blocks import Block, get_block, size_key
 from geometry.errors import InputError
 from geometry.fileio import ascii_digits, bounded_int, reject_constant
-from geometry.layout import FORMAT, MAX_COORDINATE, layout_from_dict, normalised_quaternion
+from geometry.layout import (
+    FORMAT,
+    MAX_COORDINATE,
+    layout_from_dict,
+    normalised_quaternion,
+    refuse_crowded_blocks,
+)
 from geometry.pose import Pose
 from geometry.scene import Scene
 from geometry.unity import unity_to_world
@@ -326,6 +332,12 @@ def layout_body(value: Any, scene: Scene, origin: np.ndarray, catalogue: Catalog
         if elapsed is not None and b.time_s is not None and b.time_s > elapsed:
             raise BodyError(422, f"layout: elapsed_s {elapsed:g} is earlier than block {key}'s time_s "
                                  f"{b.time_s:g}")
+    # As a layout file is refused, before any block is laid: laid one by one, 100 copies of one
+    # pose met every other copy up to the crowding check's 84th, and held the worker 16 s.
+    try:
+        refuse_crowded_blocks([(key, b.block, b.pose.position) for key, b in out], "layout")
+    except InputError as e:
+        raise BodyError(422, str(e)) from None
     return LayoutBody(out, elapsed)
 
 
