@@ -29,6 +29,7 @@ import json
 import math
 import os
 import re
+import socket
 import time
 import uuid
 from collections.abc import Callable, Iterable, Sequence
@@ -613,6 +614,23 @@ def check_scheduler(scheduler: str | None) -> None:
         raise InputError(f"--scheduler {scheduler}: not a scheduler address (tcp://HOST:PORT)")
 
 
+#: Schemes whose address is a TCP host and port (Dask's tcp, tls, ws and wss; none is tcp).
+TCP_SCHEMES = ("", "tcp", "tls", "ws", "wss")
+
+
+def _reachable(scheduler: str, timeout: float = 10.0) -> None:
+    """Refuse a TCP address nothing listens at, at once: Dask retries a refused connection
+    until its timeout (11 s to say that nothing listens at ``tcp://127.0.0.1:9``)."""
+    scheme, _, rest = scheduler.rpartition("://")
+    if scheme.lower() not in TCP_SCHEMES:
+        return
+    host, _, port = rest.rpartition(":")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except (OSError, OverflowError) as exc:
+        raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+
+
 def _connect(scheduler: str) -> Any:
     """A Dask client of the scheduler at ``scheduler``."""
     check_scheduler(scheduler)
@@ -620,6 +638,7 @@ def _connect(scheduler: str) -> Any:
         from distributed import Client
     except ImportError:
         raise InputError("--scheduler needs Dask: pip install 'shoha[dask]'") from None
+    _reachable(scheduler)
     try:
         return Client(scheduler, timeout="10s", set_as_default=False)
     except (OSError, TimeoutError, ValueError) as exc:
