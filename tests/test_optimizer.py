@@ -515,11 +515,18 @@ def test_beam_restarts_go_on_while_a_full_layout_misses_the_target(tiny, near, s
     assert phase.stats.restarts == searches
 
 
-def test_same_seed_same_layout_different_seed_different(tiny, light_tiny_1, plain_tiny_1):
-    """The whole pipeline, coverage attempts too, gives one layout a seed; another seed gives
-    another (compared without the coverage attempts, which take most of a run on ``tiny``)."""
-    assert light_tiny_1.layout.dumps() == _light(tiny, 1).layout.dumps()
+def test_same_seed_same_layout_different_seed_different(tiny, plain_tiny_1):
+    """The pipeline gives one layout a seed, and another seed gives another (without the
+    coverage attempts, which take most of a run on ``tiny``: with them, the next test)."""
+    assert plain_tiny_1.layout.dumps() == _light(tiny, 1, cover=False).layout.dumps()
     assert plain_tiny_1.layout.dumps() != _light(tiny, 2, cover=False).layout.dumps()
+
+
+@pytest.mark.slow
+def test_the_coverage_attempts_give_one_layout_a_seed(tiny, light_tiny_1):
+    """The whole pipeline, coverage attempts and moves too, gives one layout a seed (a second
+    run of about 45 s, so not in ``make test``)."""
+    assert light_tiny_1.layout.dumps() == _light(tiny, 1).layout.dumps()
 
 
 def test_a_run_short_of_its_count_tries_again_and_keeps_the_best(tiny):
