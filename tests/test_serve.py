@@ -489,6 +489,30 @@ def test_json_says_where_it_listens_once_it_answers():
     assert f"scenes on {url}" in err
 
 
+def test_a_stdout_it_cannot_write_stops_it_with_status_1():
+    """``--json`` into a pipe already closed: the launcher cannot learn where it listens, so the
+    service says why in one line, stops as on a signal, and exits with 1 (it exited with 0)."""
+    import shutil
+    import socket
+    import subprocess
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    exe = shutil.which("shoha", path=str(Path(sys.executable).parent)) or "shoha"
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        proc = subprocess.run([exe, "serve", "--json", "--port", str(port), "--reference", str(REFERENCE),
+                               "--reference-time-limit", "0"], stdout=write, stderr=subprocess.PIPE,
+                              text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert proc.returncode == 1, proc.stderr
+    said = [line for line in proc.stderr.splitlines() if "could not say where it listens" in line]
+    assert len(said) == 1 and "Traceback" not in proc.stderr, proc.stderr
+
+
 def test_score_is_shoha_score(http, saves, tmp_path):
     save = unity_save(saves["faulty"])
     path = tmp_path / "save.json"

@@ -345,7 +345,9 @@ def run(service: Service, host: str, port: int, token: str | None, cors: tuple[s
         listening: Callable[[int], None] | None = None) -> None:
     """Serve until interrupted (uvicorn with uvloop and httptools where installed).
 
-    ``listening(port)`` is called once the sockets are bound and the service answers.
+    ``listening(port)`` is called once the sockets are bound and the service answers. If it
+    fails (its stdout closed, say), the service shuts down as on a signal and exits with 1:
+    the launcher waiting for it was not told where it listens.
     """
     import uvicorn
 
@@ -358,12 +360,16 @@ def run(service: Service, host: str, port: int, token: str | None, cors: tuple[s
                 except Exception as exc:  # stdout closed (``| true``), say: shut down as on a signal
                     why = one_line(str(exc) or repr(exc))
                     log.warning("stopping: could not say where it listens (%s)", why)
+                    self.unsaid = True
                     self.should_exit = True
 
     app = build_app(service, token=token, local=host == "127.0.0.1", port=port, cors=cors)
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
                             ws_max_size=64 * 1024, lifespan="on", timeout_graceful_shutdown=2)
     server = Server(config)
+    server.unsaid = False
     started = time.perf_counter()
     server.run()
     log.info("served for %.0f s", time.perf_counter() - started)
+    if server.unsaid:
+        raise SystemExit(1)
