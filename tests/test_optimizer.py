@@ -852,26 +852,46 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
     """``covered_attempts`` around its calls of ``covered_attempt`` (stood in for here: each call
     makes an attempt or not, kept or not). The words are those of the attempt kept, else of the
     last one made, led by how many were made where more than one; a second attempt kept is
-    told the bare share of the layout without rows, not of the first attempt with them."""
+    told the bare share of the layout without rows, not of the first attempt with them. Each
+    attempt kept is repaired (``cover_repair``, stood in for too) before the next is made, and
+    the next is weighed against the repaired one."""
     from types import SimpleNamespace
 
     import optimizer.api as api
 
-    calls = []
-    plain = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=15.0), seconds=1.0)
+    calls, events = [], []
+    plain = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=15.0), seconds=1.0, phases=[])
     tried = [plain]
 
     def stand_in(problem_, strategies, tried_, chosen, rng, settle_layout, end, needs=None, without=None):
         calls.append(without)
+        events.append(("attempt", tried_[chosen].coverage.bare_share_percent))
         keep = kept[len(calls) - 1]
         if keep is None:
             return chosen, None if len(calls) > 1 else "no time was left"
-        tried_.append(SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=9.0), seconds=1.0))
+        tried_.append(SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=9.0), seconds=1.0,
+                                      phases=[]))
         return (len(tried_) - 1 if keep else chosen), f"attempt {len(calls)}" + (" kept" if keep else "")
 
+    def repair(problem_, attempt, rng, number, end):
+        events.append(("repair", number))
+        moved = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=7.0), seconds=1.0,
+                                phases=attempt.phases)
+        return moved, {"strategy": "cover", "attempt": number}
+
     monkeypatch.setattr(api, "covered_attempt", stand_in)
+    monkeypatch.setattr(api, "cover_repair", repair)
     chosen, words = api.covered_attempts(SimpleNamespace(now=lambda: 0.0), [], tried, 0, None, True, 0.0)
     assert len(tried) == 1 + made
+    # The kept attempts' repairs, each before the next attempt, which is weighed against it.
+    expected_events = {(True, True): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0), ("repair", 3)],
+                       (True, False): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0)],
+                       (True, None): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0)],
+                       (False, None): [("attempt", 15.0), ("attempt", 15.0)],
+                       (None, None): [("attempt", 15.0)]}[kept]
+    assert events == expected_events
+    assert all(t.phases == [{"strategy": "cover", "attempt": i + 1}] for i, t in enumerate(tried)
+               if ("repair", i + 1) in events)
     expected = {2: f"{made} attempts with toe rows first were made: ", 1: "", 0: ""}[made]
     if kept[0] is None:
         assert chosen == 0 and words == "no time was left"
