@@ -34,8 +34,9 @@ The pipeline, each step a pluggable strategy instance:
    toes first (:func:`covered_attempt`; trimmed as in 5 if it covers better
    but is over the window), and is kept if it covers better; if the layout
    kept then still leaves it bare and that attempt's time is left, one more
-   (``COVER_ATTEMPTS``, :func:`covered_attempts`);
-8. if the layout kept still leaves the surface bare, blocks that carry
+   (``COVER_ATTEMPTS``, :func:`covered_attempts`); an attempt with rows kept
+   is repaired as in 8 at once, before the next is weighed against it;
+8. if the layout kept still leaves the surface bare (and was not repaired in 7), blocks that carry
    nothing are moved one by one to where they cover most bare area, within
    the porosity window, and the moves are kept if the layout then stands
    (:func:`cover_repair`).
@@ -432,9 +433,9 @@ def optimize(
         (:func:`covered_attempt`); keep that layout if it reaches the count and
         porosity too and covers better (not with ``keep``), and if the layout
         kept still leaves it bare and that attempt's time is left, once more
-        (:func:`covered_attempts`). Then, with
-        ``settle_layout``, move blocks that carry nothing to bare areas
-        (:func:`cover_repair`; kept blocks never move).
+        (:func:`covered_attempts`). With ``settle_layout``, move blocks that
+        carry nothing to bare areas (:func:`cover_repair`; kept blocks never
+        move): an attempt with rows as soon as it is kept, else the layout kept.
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.source or scene.name}: a {scene.kind} scene is a 2D slice for physics "
@@ -490,14 +491,10 @@ def optimize(
     cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
         chosen, cover_note = covered_attempts(problem, strategies_run, tried, chosen, rng, settle_layout, end)
-    best = tried[chosen]
-    # An attempt with rows kept was repaired as soon as it was kept (covered_attempts); its phase is its last.
-    moves = next((p for p in best.phases[-1:] if p["strategy"] == "cover"), None)
-    if cover and settle_layout and moves is None:
+    best, moves = tried[chosen], None
+    if cover and settle_layout:
         # The attempts keep their own figures (the attempts phase); the repaired layout is written.
-        best, moves = cover_repair(problem, best, rng, chosen + 1, end)
-        if moves:
-            best.phases.append(moves)
+        best, moves = repair_once(problem, best, rng, chosen + 1, end)
     if moves and moves["moved"] and moves["stood"]:
         n = moves["moved"]
         moved = (f"moving {n} {'block that' if n == 1 else 'blocks that'} carried nothing to bare areas "
@@ -754,9 +751,7 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
                 # an aim narrowly is often covered by a move or two, where another attempt takes
                 # as long as this one (mini seed 3: 5.99 -> 4.90 % bare in one move of 6 s, against
                 # 57 s for an attempt that then came to 57.09 %, over the window).
-                tried[chosen], moves = cover_repair(problem, tried[chosen], rng, chosen + 1, end)
-                if moves is not None:
-                    tried[chosen].phases.append(moves)
+                tried[chosen], _ = repair_once(problem, tried[chosen], rng, chosen + 1, end)
         # A second attempt kept says how bare the layout without rows was, not the first one with rows.
         without = plain.coverage.bare_share_percent if plain.coverage is not None else None
     note = kept_note if kept_note is not None else note
@@ -932,6 +927,20 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
                      bare_share_percent=attempt.coverage.bare_share_percent)
     phase["seconds"] = clock() - t0
     return kept, phase
+
+
+def repair_once(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int, end: float
+                 ) -> tuple[_Attempt, dict[str, Any] | None]:
+    """:func:`cover_repair` of an attempt kept, its phase appended to the attempt's, unless
+    :func:`covered_attempts` repaired it already (its last phase is then that ``cover`` phase,
+    which is returned with it): the moves are not tried twice."""
+    made = next((p for p in attempt.phases[-1:] if p["strategy"] == "cover"), None)
+    if made is not None:
+        return attempt, made
+    repaired, phase = cover_repair(problem, attempt, rng, number, end)
+    if phase is not None:
+        repaired.phases.append(phase)
+    return repaired, phase
 
 
 #: Trims at most for one attempt (:func:`trim_repair`): one, and one more from the untrimmed

@@ -614,20 +614,22 @@ def check_scheduler(scheduler: str | None) -> None:
         raise InputError(f"--scheduler {scheduler}: not a scheduler address (tcp://HOST:PORT)")
 
 
-#: Schemes whose address is a TCP host and port (Dask's tcp, tls, ws and wss; none is tcp).
-TCP_SCHEMES = ("", "tcp", "tls", "ws", "wss")
+#: Schemes whose address is probed before Dask connects: plain TCP (none is tcp). The others
+#: are left to Dask: a bare connection to a TLS scheduler is logged there as a failed handshake.
+PROBED_SCHEMES = ("", "tcp")
 
 
 def _reachable(scheduler: str, timeout: float = 10.0) -> None:
     """Refuse a TCP address nothing listens at, at once: Dask retries a refused connection
-    until its timeout (11 s to say that nothing listens at ``tcp://127.0.0.1:9``)."""
+    until its timeout (11 s to say that nothing listens at ``tcp://127.0.0.1:9``). The
+    scheduler logs the probe as a comm closed before its handshake."""
     scheme, _, rest = scheduler.rpartition("://")
-    if scheme.lower() not in TCP_SCHEMES:
+    if scheme.lower() not in PROBED_SCHEMES:
         return
     host, _, port = rest.rpartition(":")
     try:
         socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
-    except (OSError, OverflowError) as exc:
+    except (OSError, OverflowError, ValueError) as exc:  # ValueError: a name IDNA refuses (a..b)
         raise InputError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
 
 

@@ -243,6 +243,9 @@ def test_batch_input_errors(tmp_path, saves):
          "its columns are not those of this batch"),
         (["batch", "optimize", "mini", "--layouts", str(tmp_path / "l"), "--out", str(tmp_path / "o.csv"),
           "--scheduler", "tcp://127.0.0.1:9"], "cannot connect"),
+        # Names a socket cannot even look up (the IDNA codec refuses an empty label).
+        ([*base, "--out", str(tmp_path / "o.csv"), "--scheduler", "tcp://a..b:8786"], "cannot connect"),
+        ([*base, "--out", str(tmp_path / "o.csv"), "--scheduler", "[::1]:9"], "cannot connect"),
     ]
     for args, word in cases:
         r = shoha(*args, timeout=120)

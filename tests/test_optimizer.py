@@ -482,7 +482,7 @@ def test_behind_a_wall_the_toe_rows_bring_every_point_within_h_of_a_block():
     assert before and bare[toe["attempt"] - 1] < min(before), attempts
     # The rows leave the crest beside the wall bare; moving top blocks that carry nothing
     # nearer the wall covers it, and this seed then meets both aims.
-    moves = next(p for p in r.phases if p["strategy"] == "cover")
+    moves = next(p for p in r.phases if p["strategy"] == "cover" and p["attempt"] == attempts["chosen"])
     assert moves["attempt"] == toe["attempt"] and moves["moved"] > 0 and moves["stood"]
     assert moves["bare_before_percent"] > 5.0 >= r.coverage["bare_share_percent"], r.summary()
     assert "not covered" not in r.summary()
@@ -847,7 +847,7 @@ def test_a_mound_shorter_than_a_block_gets_no_block_and_no_error(tmp_path):
 
 
 @pytest.mark.parametrize("kept, made", [((True, True), 2), ((True, False), 2), ((True, None), 1),
-                                        ((False, None), 1), ((None, None), 0)])
+                                        ((False, True), 2), ((False, None), 1), ((None, None), 0)])
 def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypatch, kept, made):
     """``covered_attempts`` around its calls of ``covered_attempt`` (stood in for here: each call
     makes an attempt or not, kept or not). The words are those of the attempt kept, else of the
@@ -887,6 +887,7 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
     expected_events = {(True, True): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0), ("repair", 3)],
                        (True, False): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0)],
                        (True, None): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0)],
+                       (False, True): [("attempt", 15.0), ("attempt", 15.0), ("repair", 3)],
                        (False, None): [("attempt", 15.0), ("attempt", 15.0)],
                        (None, None): [("attempt", 15.0)]}[kept]
     assert events == expected_events
@@ -899,9 +900,35 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
         assert chosen == 2 and words == expected + "attempt 2 kept" and calls == [None, 15.0]
     elif kept[0]:
         assert chosen == 1 and words == expected + "attempt 1 kept"
+    elif kept[1]:
+        assert chosen == 2 and words == expected + "attempt 2 kept" and calls == [None, 15.0]
     else:
         assert chosen == 0 and words == "attempt 1"
 
+
+
+def test_the_layout_kept_is_repaired_once(monkeypatch):
+    """``repair_once``: a layout that ``covered_attempts`` repaired already (its last phase is
+    ``cover``) is not repaired again, and its phase is the one returned; another is repaired,
+    and its phase appended (``cover_repair`` stood in for)."""
+    from types import SimpleNamespace
+
+    import optimizer.api as api
+
+    calls = []
+
+    def repair(problem_, attempt, rng, number, end):
+        calls.append(number)
+        return SimpleNamespace(phases=attempt.phases), {"strategy": "cover", "attempt": number}
+
+    monkeypatch.setattr(api, "cover_repair", repair)
+    done = {"strategy": "cover", "attempt": 2}
+    repaired = SimpleNamespace(phases=[{"strategy": "beam", "attempt": 2}, done])
+    assert api.repair_once(None, repaired, None, 2, 0.0) == (repaired, done) and calls == []
+    plain = SimpleNamespace(phases=[{"strategy": "beam", "attempt": 1}, {"strategy": "anneal", "attempt": 1}])
+    kept, phase = api.repair_once(None, plain, None, 1, 0.0)
+    assert calls == [1] and phase == {"strategy": "cover", "attempt": 1} and kept.phases[-1] == phase
+    assert len(plain.phases) == 3  # one list: the attempt's phases are the repaired one's
 
 
 def test_the_confirming_settles_get_the_time_that_settles_timed_in_the_run_need(tiny, monkeypatch):

@@ -328,16 +328,17 @@ def layout_body(value: Any, scene: Scene, origin: np.ndarray, catalogue: Catalog
             # A save block's other keys are ignored, as shoha convert ignores them.
             picked = {k: raw[k] for k in ("position", "rotation", "type", "time_s") if k in raw}
             out.append((index, block_body(picked, "unity", origin, scene.block_type, catalogue, where)))
+        # As a layout file is refused (layout_from_dict), before any block is laid: laid one by one,
+        # 100 copies of one pose met every other copy up to the crowding check's 84th, and held the
+        # worker 16 s.
+        try:
+            refuse_crowded_blocks([(key, b.block, b.pose.position) for key, b in out], "layout")
+        except InputError as e:
+            raise BodyError(422, str(e)) from None
     for key, b in out:
         if elapsed is not None and b.time_s is not None and b.time_s > elapsed:
             raise BodyError(422, f"layout: elapsed_s {elapsed:g} is earlier than block {key}'s time_s "
                                  f"{b.time_s:g}")
-    # As a layout file is refused, before any block is laid: laid one by one, 100 copies of one
-    # pose met every other copy up to the crowding check's 84th, and held the worker 16 s.
-    try:
-        refuse_crowded_blocks([(key, b.block, b.pose.position) for key, b in out], "layout")
-    except InputError as e:
-        raise BodyError(422, str(e)) from None
     return LayoutBody(out, elapsed)
 
 
