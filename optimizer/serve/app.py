@@ -352,6 +352,8 @@ def run(service: Service, host: str, port: int, token: str | None, cors: tuple[s
     import uvicorn
 
     class Server(uvicorn.Server):
+        unsaid = False  # listening() failed: where it listens was not said
+
         async def startup(self, sockets: list | None = None) -> None:
             await super().startup(sockets)
             if self.started and listening is not None:
@@ -367,7 +369,6 @@ def run(service: Service, host: str, port: int, token: str | None, cors: tuple[s
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False,
                             ws_max_size=64 * 1024, lifespan="on", timeout_graceful_shutdown=2)
     server = Server(config)
-    server.unsaid = False
     started = time.perf_counter()
     server.run()
     log.info("served for %.0f s", time.perf_counter() - started)
