@@ -156,3 +156,34 @@ def test_a_pattern_block_near_the_wall_is_set_down_against_it(walled, open_, gap
     open_build = Build(open_)
     beside = open_build.lower(shape, -1.5 + half + gap_h * h, 7.0)
     assert set_against_wall(problem(open_), open_build, beside, lower) is beside
+
+
+def test_behind_a_wall_the_toe_row_is_laid_seaward_and_brings_the_toe_within_h(walled, open_):
+    """Behind a wall only the seaward toe is open: the rows (``ToeRows``) lay one row there, none
+    against the wall, and every point of the seaward toe line, end to end, is within H of a block
+    of it (the coverage aim). Where the mound is open, the landward toe gets its row too.
+
+    Until stop 54 this was checked through the whole ``optimize`` run on ``wall-shake`` seed 2,
+    which keeps an attempt with rows only when its clock allows (it did not on 2026-11-28)."""
+    from geometry.coverage import AIM_MAX_BARE_H, distance_to_block, surface_samples
+    from optimizer.search.hangings import families
+    from optimizer.search.patterns import lattice_for
+    from optimizer.search.problem import Problem
+    from optimizer.search.toe import ToeRows
+
+    def rows(scene):
+        problem = Problem(scene=scene, required=scene.required_blocks, target=scene.target_porosity,
+                          lattice=lattice_for(scene.block, scene.block_type), families=families(scene.block))
+        return ToeRows().run(problem, None, np.random.default_rng(1)).build.placed()
+
+    walled_rows, open_rows = rows(walled), rows(open_)
+    x = np.array([pose.position[0] for _, _, pose in walled_rows])
+    assert len(x) >= 6 and (x > 0).all(), x
+    assert out_of_tolerance(walled_rows, walled.tolerance) == []
+    assert (np.array([pose.position[0] for _, _, pose in open_rows]) < 0).sum() >= 6
+    samples = surface_samples(walled)
+    toe = (samples.face == 0) & (samples.points[:, 2] == walled.design.z_bottom)
+    assert toe.sum() >= 20
+    near = np.min([distance_to_block(samples.points[toe], block, pose) for _, block, pose in walled_rows],
+                  axis=0)
+    assert near.max() <= AIM_MAX_BARE_H * walled.block.height, near.max()
