@@ -75,9 +75,15 @@ def ascii_digits(text: str) -> bool:
 def bounded_int(text: str) -> int:
     """A JSON integer, refused where no float can hold it (``10**400`` would pass every
     type check as an int and then fail in float arithmetic)."""
-    if len(text.lstrip("-")) > MAX_INT_DIGITS:
-        raise ValueError(f"an integer of {len(text.lstrip('-'))} digits is too large")
-    return int(text)
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INT_DIGITS:
+        raise ValueError(f"an integer of {digits} digits is too large")
+    value = int(text)
+    try:
+        float(value)  # 309 digits may still be past the largest float, 1.8e308
+    except OverflowError:
+        raise ValueError(f"an integer of {digits} digits is too large for a float") from None
+    return value
 
 
 def regular_file(path: Path) -> os.stat_result:

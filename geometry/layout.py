@@ -22,7 +22,6 @@ completion time and blocks per hour from them.
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -32,7 +31,7 @@ import numpy as np
 
 from .blocks import Block, get_block
 from .constants import MAX_BLOCKS, tol
-from .errors import InputError
+from .errors import InputError, finite_number, shown
 from .fileio import atomic_write, read_json
 from .pose import Pose
 from .scene import Scene, load_scene
@@ -244,9 +243,10 @@ def refuse_crowded_blocks(blocks: list[tuple[int, Any, np.ndarray]], source: str
 def check_seconds(value: Any, what: str, where: str) -> float:
     """``value`` as seconds since the session began: a finite, non-negative number, else an error."""
     if not isinstance(value, (int, float)) or isinstance(value, bool):
-        raise InputError(f"{where}: {what} must be a number of seconds, not {value!r}")
-    if not math.isfinite(value) or value < 0:
-        raise InputError(f"{where}: {what} must be a finite, non-negative number of seconds, not {value!r}")
+        raise InputError(f"{where}: {what} must be a number of seconds, not {shown(value)}")
+    if not finite_number(value) or value < 0:
+        raise InputError(f"{where}: {what} must be a finite, non-negative number of seconds, "
+                         f"not {shown(value)}")
     return float(value)
 
 
@@ -309,7 +309,7 @@ def _vector(value: Any, n: int, name: str, where: str) -> np.ndarray:
     if (not isinstance(value, list) or len(value) != n
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
         raise InputError(f"{where}: {name} must be a list of {n} numbers")
-    if not all(math.isfinite(v) for v in value):
+    if not all(finite_number(v) for v in value):
         raise InputError(f"{where}: {name} has a non-finite number")
     return np.array(value, dtype=float)
 

@@ -41,7 +41,7 @@ import numpy as np
 
 from .blocks import Block, get_block
 from .constants import tol
-from .errors import InputError
+from .errors import InputError, finite_number, shown
 from .tolerance import Allowance, TrapezoidalPrism, design_prism, tolerance_prism
 
 SCENE_KINDS = ("3d", "section")
@@ -313,7 +313,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     name = _str(data, "name", source, default=Path(source).stem)
     kind = _str(data, "kind", source, default="3d")
     if kind not in SCENE_KINDS:
-        raise InputError(f"{source}: kind must be one of {', '.join(SCENE_KINDS)}, not {kind!r}")
+        raise InputError(f"{source}: kind must be one of {', '.join(SCENE_KINDS)}, not {shown(kind)}")
     block_type = _str(data, "block", source, default="shake-4t")
     try:
         block = get_block(block_type, base_dir)
@@ -334,7 +334,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     slope = float(rise_run[1]) / float(rise_run[0])
     wall = design.get("wall", False)
     if not isinstance(wall, bool):
-        raise InputError(f"{source}: [design] wall must be true or false, not {wall!r}")
+        raise InputError(f"{source}: [design] wall must be true or false, not {shown(wall)}")
     for key, value in (("crest_width_m", crest_width), ("height_m", height), ("length_m", length)):
         if value > 10_000:
             raise InputError(f"{source}: [design] {key} = {value} m is not a breakwater")
@@ -360,7 +360,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
 
     f_kind = _str(found, "kind", source, default="flat")
     if f_kind not in ("flat", "rough"):
-        raise InputError(f"{source}: [foundation] kind must be flat or rough, not {f_kind!r}")
+        raise InputError(f"{source}: [foundation] kind must be flat or rough, not {shown(f_kind)}")
     amplitude = _num(found, "amplitude_m", source, default=0.0 if f_kind == "flat" else 0.1, lo=0.0)
     cell = _num(found, "cell_m", source, default=0.5, lo=0.05)
     seed = found.get("seed", 0)
@@ -404,7 +404,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
 def _check_keys(table: dict[str, Any], allowed: set[str], where: str) -> None:
     unknown = sorted(set(table) - allowed)
     if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r} (allowed: {', '.join(sorted(allowed))})")
+        raise InputError(f"{where}: unknown key {shown(unknown[0])} (allowed: {', '.join(sorted(allowed))})")
 
 
 def _table(data: dict[str, Any], key: str, source: str, required: bool = False) -> dict[str, Any]:
@@ -419,7 +419,7 @@ def _table(data: dict[str, Any], key: str, source: str, required: bool = False) 
 
 
 def _is_num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return finite_number(v)
 
 
 def _num(table: dict[str, Any], key: str, source: str, default: float | None = None,
@@ -430,7 +430,7 @@ def _num(table: dict[str, Any], key: str, source: str, default: float | None = N
         return float(default)
     v = table[key]
     if not _is_num(v):
-        raise InputError(f"{source}: {key} must be a finite number, not {v!r}")
+        raise InputError(f"{source}: {key} must be a finite number, not {shown(v)}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise InputError(f"{source}: {key} = {v} must be {'>' if lo_open else '>='} {lo}")
     return float(v)

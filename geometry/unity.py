@@ -13,7 +13,6 @@ sign flips and a swap, exact in floating point.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 from typing import Any
@@ -22,7 +21,7 @@ import numpy as np
 
 from .blocks import get_block
 from .constants import MAX_BLOCKS
-from .errors import InputError
+from .errors import InputError, finite_number
 from .fileio import read_json
 from .layout import (
     Layout,
@@ -119,7 +118,7 @@ def _fields(value: Any, names: str, what: str, where: str) -> dict[str, float]:
         v = value.get(c)
         if not isinstance(v, (int, float)) or isinstance(v, bool):
             raise InputError(f"{where}: {what}.{c} must be a number")
-        if not math.isfinite(v):
+        if not finite_number(v):
             raise InputError(f"{where}: {what}.{c} is not finite")
         out[c] = float(v)
     return out

@@ -26,7 +26,7 @@ import numpy as np
 
 from geometry.blocks import Block
 from geometry.constants import tol
-from geometry.errors import InputError
+from geometry.errors import InputError, finite_number, shown
 from geometry.pose import Pose
 from geometry.scene import Scene
 
@@ -68,8 +68,8 @@ class Thresholds:
     def __post_init__(self) -> None:
         for name in ("displacement_fraction", "rotation_deg"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0:
-                raise InputError(f"thresholds: {name} must be a non-negative number, not {v!r}")
+            if not finite_number(v) or v < 0:
+                raise InputError(f"thresholds: {name} must be a non-negative number, not {shown(v)}")
 
     def displacement_limit(self, block: Block) -> float:
         """Largest stable displacement of ``block``, metres."""

@@ -124,6 +124,11 @@ BAD = [
     # An integer no float holds passes every type check as an int, then overflows in arithmetic.
     (json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": [_block(position=[10**400, 1, 1])]}),
      "401 digits is too large"),
+    # 309 digits pass the count of digits, and 9...9 (1e309) is still past the largest float: a
+    # quaternion or a time of it gave exit 1 in every verb that reads a layout.
+    (json.dumps({"format": "shoha-layout/1", "scene": "mini",
+                 "blocks": [_block(quaternion=[int("9" * 309), 0, 0, 1])]}),
+     "309 digits is too large for a float"),
 ]
 
 
@@ -230,3 +235,16 @@ def test_blocks_of_many_sizes_in_one_place_are_refused(tmp_path):
     path = tmp_path / "two.json"
     path.write_text(json.dumps({"format": "shoha-layout/1", "scene": "mini", "blocks": blocks}))
     assert len(read_layout(path).blocks) == 40
+
+
+def test_an_integer_no_float_holds_is_not_a_finite_number():
+    """Numbers from a TOML file or a caller are not bounded by the JSON reader: an int past the
+    largest float is refused as not finite, not met with an OverflowError (exit 1)."""
+    from geometry.errors import finite_number
+    from settle.base import Thresholds
+
+    assert finite_number(1) and finite_number(-2.5) and finite_number(10**308)
+    refused = (10**309, -(10**400), float("nan"), float("inf"), True, "1", None)
+    assert not any(finite_number(v) for v in refused)
+    with pytest.raises(InputError, match=r"rotation_deg must be a non-negative number, not 1{37}\.\.\."):
+        Thresholds(rotation_deg=int("1" * 400))

@@ -99,6 +99,10 @@ def test_rough_foundation_is_seeded_and_bounded(tmp_path):
         # A run 1e300 times the rise overflowed, with a warning on stderr; 1e300 is not "positive"'s fault.
         (MINI_TOML.replace("[3.0, 4.0]", "[1e-300, 1]"), "run from 1/1000 to 1000 times the rise"),
         (MINI_TOML.replace("[3.0, 4.0]", "[1e300, 1e300]"), "two positive numbers below 1e6"),
+        # An integer no float holds (TOML has no limit on digits) passed as an int, then overflowed
+        # with exit 1; the message shows a cut of it, not 400 digits.
+        (MINI_TOML.replace("height_m = 3.0", "height_m = " + "9" * 400),
+         r"bad.toml: height_m must be a finite number, not 9{37}\.\.\.$"),
         # A NUL in a name went through to every JSON answer; a 10 MB name into every report.
         (MINI_TOML.replace('"t"', '"mi\\u0000ni"', 1),
          "bad.toml: name 'mi\\\\x00ni' holds a control character"),

@@ -32,7 +32,7 @@ import numpy as np
 from geometry.blocks import Block
 from geometry.collision import fcl_objects, world_of
 from geometry.constants import tol
-from geometry.errors import InputError
+from geometry.errors import InputError, finite_number, shown
 from geometry.pose import Pose
 from geometry.scene import Foundation
 
@@ -63,10 +63,10 @@ class InterlockRule:
         for name in ("min_contacts", "min_neighbours"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
-                raise InputError(f"interlock: {name} must be a non-negative integer, not {v!r}")
+                raise InputError(f"interlock: {name} must be a non-negative integer, not {shown(v)}")
         f = self.neighbour_fraction
-        if not isinstance(f, (int, float)) or not np.isfinite(f) or f < 0:
-            raise InputError(f"interlock: neighbour_fraction must be a non-negative number, not {f!r}")
+        if not finite_number(f) or f < 0:
+            raise InputError(f"interlock: neighbour_fraction must be a non-negative number, not {shown(f)}")
 
 
 @dataclass(frozen=True)

@@ -54,7 +54,7 @@ from geometry.blocks import Block
 from geometry.collision import Collision, collisions
 from geometry.constants import tol
 from geometry.coverage import CoverageReport, coverage, coverage_after
-from geometry.errors import InputError
+from geometry.errors import InputError, finite_number, shown
 from geometry.porosity import exact_filled_volume, porosity
 from geometry.pose import Pose
 from geometry.scene import Scene
@@ -134,8 +134,8 @@ class ScoreWeights:
 
     def __post_init__(self) -> None:
         for name, v in self.__dict__.items():
-            if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or v < 0:
-                raise InputError(f"score weights: {name} must be a non-negative number, not {v!r}")
+            if not finite_number(v) or v < 0:
+                raise InputError(f"score weights: {name} must be a non-negative number, not {shown(v)}")
 
     def to_dict(self) -> dict[str, float]:
         return dict(self.__dict__)

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from geometry.blocks import Block, get_block, size_key
-from geometry.errors import InputError
+from geometry.errors import InputError, finite_number
 from geometry.fileio import ascii_digits, bounded_int, reject_constant
 from geometry.layout import (
     FORMAT,
@@ -126,10 +126,9 @@ def _only(value: dict[str, Any], allowed: Iterable[str], where: str) -> None:
 def _number(value: Any, where: str) -> float:
     if not isinstance(value, (int, float)) or isinstance(value, bool):
         raise BodyError(422, f"{where} must be a number")
-    v = float(value) if not isinstance(value, int) or abs(value) < 2**1000 else math.inf
-    if not math.isfinite(v):
+    if not finite_number(value):
         raise BodyError(422, f"{where} is not a finite number")
-    return v
+    return float(value)
 
 
 def _numbers(value: Any, n: int, where: str) -> np.ndarray:
