@@ -55,6 +55,10 @@ MAX_SAMPLES = 500_000
 #: block rules allow) had 1.3 million at its H / 16, and three such held ``shoha check``
 #: for 62 s and 3.4 GB. A Shake Block has about a thousand.
 MAX_BLOCK_SAMPLES = 20_000
+#: The halving meets that aim only roughly, and on long slivers not at all: a 4 m cylinder of
+#: 96 triangles had 158 000 at the spacing the aim gives, and the coverage of 16 of them took
+#: 215 s. Past this many the spacing is widened until it is not.
+MOST_BLOCK_SAMPLES = 2 * MAX_BLOCK_SAMPLES
 
 #: Surface points per nearest-sample query, the deadline read between them: 0.015 s on the
 #: ``mini`` reference (16 874 points, 0.06 s in all), 0.55 s among 27 slender beams.
@@ -138,8 +142,9 @@ def surface_samples(scene: Scene, spacing: float | None = None) -> SurfaceSample
 _SAMPLES: weakref.WeakKeyDictionary[Block, dict[float, np.ndarray]] = weakref.WeakKeyDictionary()
 
 
-def block_samples(block: Block, spacing: float) -> np.ndarray:
-    """Points on the block's surface, block frame, no point of it further than ``spacing`` from one.
+def block_samples(block: Block, spacing: float, most: int | None = None) -> np.ndarray | None:
+    """Points on the block's surface, block frame, no point of it further than ``spacing`` from one;
+    None if that takes more than ``most`` of them.
 
     Each triangle is halved across its longest edge until no edge is longer
     than ``spacing``, and the corners are kept: every point of a triangle
@@ -160,6 +165,8 @@ def block_samples(block: Block, spacing: float) -> np.ndarray:
         tri = tri[long]
         if not len(tri):
             break
+        if most is not None and sum(map(len, pts)) + len(tri) // 2 > most:
+            return None  # each triangle left adds a point, which at most one neighbour shares
         i = edges[long].argmax(axis=1)
         rows = np.arange(len(tri))
         a, b, c = tri[rows, i], tri[rows, (i + 1) % 3], tri[rows, (i + 2) % 3]
@@ -168,7 +175,7 @@ def block_samples(block: Block, spacing: float) -> np.ndarray:
         tri = np.concatenate([np.stack([a, mid, c], axis=1), np.stack([mid, b, c], axis=1)])
     out = np.unique(np.round(np.concatenate(pts), 12), axis=0)
     cache[spacing] = out
-    return out
+    return None if most is not None and len(out) > most else out
 
 
 # --- exact distances ---------------------------------------------------------------------------
@@ -418,6 +425,16 @@ def _reaching(pts: np.ndarray, placed: Placed) -> Placed:
     return _near(placed, centres, pts, float(nearest.max()) + 2.0 * _largest_radius(placed))
 
 
+def block_spacing(block: Block, step: float) -> float:
+    """The spacing a block is sampled at: no finer than ``step``, its own H / CELLS_PER_H and
+    MAX_BLOCK_SAMPLES over its surface, and widened by half again while that takes more than
+    MOST_BLOCK_SAMPLES."""
+    spacing = max(step, block.height / CELLS_PER_H, math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
+    while block_samples(block, spacing, most=MOST_BLOCK_SAMPLES) is None:
+        spacing *= 1.5
+    return spacing
+
+
 def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact: bool = False,
                due: tuple[float, Callable[[], float]] | None = None) -> np.ndarray:
     """Each point's distance to the nearest block: exact where it decides the point is bare, and
@@ -437,9 +454,7 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
         # And no finer than MAX_BLOCK_SAMPLES over its surface (the halving leaves about four
         # samples to each spacing squared of it).
         kinds = {id(block): block for _, block, _ in placed}
-        spacing = {k: max(step, block.height / CELLS_PER_H,
-                          math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
-                   for k, block in kinds.items()}
+        spacing = {k: block_spacing(block, step) for k, block in kinds.items()}
         step = max(spacing.values())
         clouds = []
         for _, block, pose in placed:
@@ -469,11 +484,15 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
         # The blocks that may hold each open point's nearest surface, gathered per block, so
         # that each block measures all its points in one vectorised call (a call per point
         # and block cost 0.8 of the 1 s a 75-block layout took; the distances are the same).
+        # In parts too, the deadline read between them: 16 needles 0.1 m thick left 500 000 open
+        # points on a mound, gathered for 3.6 s past a 10 s limit.
         pairs: dict[int, list[int]] = {}
-        for i, near in zip(points, centres.query_ball_point(pts[points], upper[points] + radius),
-                           strict=True):
-            for k in {int(owner[nearest[i]]), *near}:
-                pairs.setdefault(k, []).append(int(i))
+        for lo in range(0, len(points), QUERY_CHUNK):
+            check()
+            part = points[lo:lo + QUERY_CHUNK]
+            for i, near in zip(part, centres.query_ball_point(pts[part], upper[part] + radius), strict=True):
+                for k in {int(owner[nearest[i]]), *near}:
+                    pairs.setdefault(k, []).append(int(i))
         for k, members in pairs.items():
             check()
             idx = np.array(members)

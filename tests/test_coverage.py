@@ -150,6 +150,33 @@ def test_a_slender_block_is_sampled_by_its_area_not_its_longest_edge():
     assert len(pts) < 20 * beam.surface_area / spacing**2
 
 
+def test_a_sliver_block_is_sampled_no_finer_than_its_bound_allows(tmp_path, mini):
+    """A 4 m cylinder 0.24 m thick (96 triangles, long slivers): halving took 158 000 samples at
+    the spacing MAX_BLOCK_SAMPLES gives, and 16 such blocks took 215 s to measure. The spacing
+    is widened until it takes at most MOST_BLOCK_SAMPLES, every point of the surface still
+    within it of a sample, and the bare samples are the ones measured exactly everywhere."""
+    import geometry.coverage as cov
+    from geometry.blocks import get_block
+
+    path = tmp_path / "rod.stl"
+    trimesh.creation.cylinder(radius=0.12, height=4.0, sections=32).export(path)
+    rod = get_block(f"mesh:{path}")
+    first = max(rod.height / cov.CELLS_PER_H, np.sqrt(4.0 * rod.surface_area / cov.MAX_BLOCK_SAMPLES))
+    assert block_samples(rod, first, most=cov.MOST_BLOCK_SAMPLES) is None  # the case itself
+    spacing = cov.block_spacing(rod, 0.0)
+    pts = block_samples(rod, spacing)
+    assert spacing > first and len(pts) <= cov.MOST_BLOCK_SAMPLES
+    surface = trimesh.Trimesh(rod.vertices, rod.faces, process=False).sample(5000, seed=4)
+    from scipy.spatial import cKDTree
+    assert cKDTree(pts).query(surface)[0].max() <= spacing
+    placed = [(i, rod, Pose([x, 6.0, mini.design.z_top], axis_angle_quat([0, 1, 0], np.pi / 2)))
+              for i, x in enumerate((-1.0, 0.0, 1.0))]
+    c = coverage(mini, placed)
+    exact = cov._distances(c.samples.points, placed, c.spacing_m, c.bare_distance_m, exact=True)
+    np.testing.assert_array_equal(c.bare, exact > c.bare_distance_m)
+    assert c.max_bare_m == pytest.approx(exact.max(), abs=1e-12)
+
+
 def test_tiny_blocks_on_a_big_mound_are_measured_with_a_bounded_sample():
     """5 cm tetrapods on mini would have taken 19 million samples of the surface."""
     from geometry.coverage import MAX_SAMPLES
@@ -176,7 +203,7 @@ def test_blocks_far_larger_than_the_scenes_are_sampled_by_their_own_size(boxes, 
     asked = []
     real = cov.block_samples
     monkeypatch.setattr(cov, "block_samples",
-                        lambda block, spacing: asked.append(spacing) or real(block, spacing))
+                        lambda block, spacing, most=None: asked.append(spacing) or real(block, spacing, most))
     c = coverage(tiny, placed)
     assert min(asked) == pytest.approx(cube.height / 16)
     pts = c.samples.points
@@ -199,7 +226,7 @@ def test_the_design_surface_inside_a_thick_block_is_covered(mini, monkeypatch):
     asked = []
     real = cov.block_samples
     monkeypatch.setattr(cov, "block_samples",
-                        lambda block, spacing: asked.append(spacing) or real(block, spacing))
+                        lambda block, spacing, most=None: asked.append(spacing) or real(block, spacing, most))
     c = coverage(mini, placed)
     assert min(asked) == pytest.approx(np.sqrt(4.0 * slab.surface_area / cov.MAX_BLOCK_SAMPLES))
     assert len(real(slab, min(asked))) <= 1.2 * cov.MAX_BLOCK_SAMPLES

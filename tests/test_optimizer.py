@@ -653,10 +653,10 @@ def test_a_coverage_that_would_overrun_the_limit_is_left_out(tiny, monkeypatch):
 
     calls = []
 
-    def slow(block, spacing):
+    def slow(block, spacing, most=None):
         clock.t += 1.0
         calls.append(1)
-        return samples(block, spacing)
+        return samples(block, spacing, most)
 
     monkeypatch.setattr(cov, "block_samples", slow)
     r = optimize(tiny, seed=3, time_limit=4.0, clock=clock, cover=False)

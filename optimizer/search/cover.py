@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from geometry.blocks import Block
-from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, coverage_after
+from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, block_spacing, coverage_after
 from geometry.pose import Pose
 
 from .build import Build, Candidate
@@ -83,7 +83,7 @@ class BareArea:
         self.area = report.samples.area[on]
         self.tree = cKDTree(self.points) if len(self.points) else None
         self.limit = BARE_FRACTION * block.height
-        self.local = cKDTree(block_samples(block, report.spacing_m))
+        self.local = cKDTree(block_samples(block, block_spacing(block, report.spacing_m)))
         self.reach = block.bounding_radius + self.limit  # no sample of the block is further out
 
     def near(self, position: np.ndarray, radius: float) -> float:
