@@ -57,6 +57,9 @@ SHAKE_4T_AREA = 9.796  # m^2
 #: Largest user mesh accepted, in triangles. Manufacturer CAD of a block is a
 #: few thousand; CoACD on millions would run for hours.
 MAX_MESH_FACES = 500_000
+#: Most corners of a mesh block's convex hull (a Shake Block's has 24; a ball cut into
+#: 81 920 triangles, 40 962).
+MAX_HULL_VERTICES = 20_000
 #: A mesh file's largest size, checked before it is read: an ASCII STL of MAX_MESH_FACES
 #: triangles is about 130 MB.
 MAX_MESH_BYTES = 256 * 2**20
@@ -575,6 +578,13 @@ def mesh_block(path: str, name: str | None = None) -> Block:
             mesh.invert()
         else:
             raise InputError(f"{path}: mesh encloses no volume")
+    hull = len(np.unique(mesh.convex_hull.faces))
+    if hull > MAX_HULL_VERTICES:
+        # Its rest poses look at every facet of the hull that carries the centroid: on a ball of
+        # 327 680 triangles each of them does, and `shoha block info` ran past 10 minutes.
+        raise InputError(f"{path}: the block's convex hull has {hull} corners, more than "
+                         f"{MAX_HULL_VERTICES}; simplify (decimate) the mesh: its rest poses and pieces "
+                         "are found from them")
     check_aspect(mesh.bounding_box_oriented.primitive.extents, str(path))
     centroid = np.asarray(mesh.center_mass)
     if not rest_poses(mesh.vertices - centroid):

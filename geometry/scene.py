@@ -83,10 +83,11 @@ class Foundation:
     def grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Height field: x nodes (nx,), y nodes (ny,), heights (nx, ny), metres."""
         x0, x1, y0, y1 = self.extent
+        if self.kind != "rough":
+            # Flat: the corners hold it (a zone 20 km wide gridded every cell took 6 GB to export).
+            return np.array([x0, x1]), np.array([y0, y1]), np.zeros((2, 2))
         xs = np.arange(x0, x1 + self.cell, self.cell)
         ys = np.arange(y0, y1 + self.cell, self.cell)
-        if self.kind != "rough":
-            return xs, ys, np.zeros((len(xs), len(ys)))
         rng = np.random.default_rng(self.seed)
         return xs, ys, rng.uniform(-self.amplitude, self.amplitude, (len(xs), len(ys)))
 
@@ -382,8 +383,12 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     extent = (-zone.bottom_half_width - margin, zone.bottom_half_width + margin,
               zone.y_start - margin, zone.y_end + margin)
     foundation = Foundation(f_kind, amplitude if f_kind == "rough" else 0.0, cell, seed, extent)
-    if f_kind == "rough" and (extent[1] - extent[0]) * (extent[3] - extent[2]) / cell**2 > 4e6:
+    if f_kind == "rough" and ((extent[1] - extent[0]) / cell) * ((extent[3] - extent[2]) / cell) > 4e6:
         raise InputError(f"{source}: [foundation] cell_m = {cell} m makes too fine a height field")
+    if f_kind == "rough" and cell > min(extent[1] - extent[0], extent[3] - extent[2]):
+        # One cell past the foundation holds no rubble to speak of (1e308 overflowed its area).
+        raise InputError(f"{source}: [foundation] cell_m = {cell:g} m is wider than the foundation "
+                         f"({extent[1] - extent[0]:.4g} by {extent[3] - extent[2]:.4g} m)")
 
     default_required = math.ceil((1 - target / 100) * scene.design_volume / block.volume - tol.relative)
     if "required_blocks" not in data and not 0 <= default_required <= 100_000:

@@ -241,6 +241,19 @@ def test_a_block_with_no_stable_face_is_an_input_error(tmp_path):
         mesh_block(str(path))
 
 
+def test_a_mesh_whose_hull_has_too_many_corners_is_an_input_error(tmp_path):
+    """A ball of 81 920 triangles: every facet of its hull was looked at as a rest pose, each
+    against every vertex (one of 327 680 triangles ran past 10 minutes). It is refused at once,
+    naming the count and the remedy."""
+    from geometry.blocks import MAX_HULL_VERTICES
+
+    path = tmp_path / "ball.stl"
+    trimesh.creation.icosphere(subdivisions=6, radius=0.8).export(path)
+    with pytest.raises(InputError, match=f"ball.stl: the block's convex hull has 40962 corners, more than "
+                                         f"{MAX_HULL_VERTICES}; simplify"):
+        mesh_block(str(path))
+
+
 @pytest.mark.parametrize("extents, thin", [([1.0, 1.0, 1e-7], "1e-07 m thin"),
                                            ([99.0, 1.0, 1.0], "1 m thin")])
 def test_a_sliver_or_a_needle_is_an_input_error(tmp_path, extents, thin):

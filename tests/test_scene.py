@@ -91,6 +91,9 @@ def test_rough_foundation_is_seeded_and_bounded(tmp_path):
         (MINI_TOML.replace('"shake-4t"', '"brick"'), "unknown block"),
         (MINI_TOML + "required_blocks = 1e9\n", "required_blocks"),
         ("this is = = not toml", "malformed TOML"),
+        # A cell of 1e308 m overflowed the height field's count (exit 1).
+        (MINI_TOML + "[foundation]\nkind = 'rough'\ncell_m = 1e308\n",
+         r"bad.toml: \[foundation\] cell_m = 1e\+308 m is wider than the foundation"),
         (MINI_TOML + "[foundation]\nkind = 'lava'\n", "flat or rough"),
         (MINI_TOML + "[tolerance]\nend_extension_m = 1e6\n", r"bad.toml: \[tolerance\] end_extension_m"),
         (MINI_TOML + "[tolerance]\ncrest_rise_m = 5000\n", "bad.toml: tolerance: slope length"),
@@ -152,3 +155,17 @@ def test_every_built_in_scene_keeps_its_name():
     """A loop over the tolerance keys once reused ``name``, and every scene was called
     ``slope_lengthening``; ``shoha serve`` then refused every reference."""
     assert [load_scene(n).name for n in builtin_scenes()] == builtin_scenes()
+
+
+def test_a_flat_foundation_is_a_box_however_wide():
+    """A flat foundation's slab is its corners: gridded every cell, a tolerance zone widened by
+    10 km took 6 GB to export (the kernel killed it)."""
+    wide = MINI_TOML + "[tolerance]\ncrest_widening_m = 10000.0\nend_extension_m = 10000.0\n"
+    scene = parse_scene(wide, "wide.toml", None)
+    vertices, faces = scene.foundation.slab()
+    assert len(vertices) == 8 and len(faces) == 12
+    x0, x1, y0, y1 = scene.foundation.extent
+    assert x1 - x0 > 10_000 and y1 - y0 > 20_000
+    np.testing.assert_array_equal(vertices[:, :2].min(axis=0), [x0, y0])
+    np.testing.assert_array_equal(vertices[:, :2].max(axis=0), [x1, y1])
+    assert vertices[:, 2].max() == 0.0
