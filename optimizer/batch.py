@@ -424,7 +424,7 @@ class RowFile:
         for n, line in enumerate(text.splitlines(), 1):
             try:
                 row = json.loads(line)
-            except json.JSONDecodeError:
+            except (json.JSONDecodeError, RecursionError):  # a line of 100 000 "[" is the second
                 raise InputError(f"{self.path}: line {n} is not JSON; use a new --out") from None
             # Rows are written with this batch's columns first, in order (``line``): a row of
             # the other kind of batch (score rows in an optimize's file) is not one of these.

@@ -287,6 +287,9 @@ def test_row_file_cuts_a_torn_last_line_and_refuses_other_files(tmp_path):
     lines.write_text('{"item": "a"}\nnot json\n')
     with pytest.raises(InputError):
         RowFile(lines, SCORE_COLUMNS).read()
+    lines.write_text("[" * 100_000 + "\n")  # deeper than the JSON reader recurses: exit 1 before
+    with pytest.raises(InputError, match="line 1 is not JSON"):
+        RowFile(lines, SCORE_COLUMNS).read()
     good = RowFile(lines, SCORE_COLUMNS).line({"item": "a", "status": "ok"}).decode()
     for bad in ('{"item": NaN}', '{"item": 3}', '{"item": null}', '{"score": 1}', '{"item": "b"}'):
         lines.write_text(good + bad + "\n")
