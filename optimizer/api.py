@@ -59,6 +59,7 @@ from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION, C
 from geometry.errors import InputError
 from geometry.layout import Layout, Placement
 from geometry.scene import Scene
+from settle import Stopped
 
 from .search.anneal import Annealing
 from .search.beam import BeamSearch
@@ -68,7 +69,7 @@ from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
-from .search.physics import confirm, judged, raised_check, stands, verdict
+from .search.physics import SETTLE_GRACE, confirm, judged, raised_check, stands, verdict
 from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
 from .search.toe import ToeRows
 from .search.trim import over, trim_moves
@@ -684,6 +685,11 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                         search_seconds=search_seconds)
     searched = len(build)
     build, confirmation = confirm(problem, build, rng, origin, end, whole=all_or_nothing)
+    if confirmation.stopped:
+        # Its settle ran past the end and was stopped: the layout is written as searched, and says
+        # it is not settled, as where not even one settle fits.
+        return _Attempt(build, phases, gap, {"skipped": "time"}, None, clock() - start,
+                        searched=searched, search_seconds=search_seconds)
     # Short of the count, the pocket fill (if it is among the strategies) goes on from the
     # confirmed layout while a fill and one more confirmation fit: the settle has let blocks
     # come to rest lower, and what did not stand is out.
@@ -1001,7 +1007,11 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     if clock() + settle_reserve(problem.scene, meter=problem.meter) > end:
         return attempt
     t1 = clock()
-    result = verdict(problem, build.placed(), rng, movable=judged(build))
+    try:
+        result = verdict(replace(problem, settle_until=end + SETTLE_GRACE), build.placed(), rng,
+                         movable=judged(build))
+    except Stopped:
+        return attempt  # it ran past the end: not known to stand (``stood`` stays None)
     phase["stood"] = bool(result.stable)
     if not result.stable:
         return attempt

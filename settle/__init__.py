@@ -19,6 +19,7 @@ from .base import (
     SettleBackend,
     SettleBody,
     SettleResult,
+    Stopped,
     Thresholds,
 )
 from .mujoco_backend import MujocoBackend
@@ -35,6 +36,7 @@ __all__ = [
     "SettleBackend",
     "SettleBody",
     "SettleResult",
+    "Stopped",
     "Thresholds",
     "default_backend",
     "settle",

@@ -101,6 +101,10 @@ class SettleBody(NamedTuple):
     angular_velocity: np.ndarray
 
 
+class Stopped(RuntimeError):
+    """A settle stopped by its caller (``stop``) before it ended: it has no verdict."""
+
+
 class Diverged(RuntimeError):
     """The engine's state became non-finite: the bodies' contacts were more than it could
     resolve (a block wedged between a wall and rough ground). The scene is not wrong; this
@@ -222,6 +226,7 @@ class SettleBackend(abc.ABC):
         seconds: float,
         early_stop: bool,
         progress: Progress | None = None,
+        stop: Callable[[], bool] | None = None,
     ) -> Run:
         """Simulate ``seconds`` of gravity on ``bodies`` standing on ``scene``'s foundation.
 
@@ -237,6 +242,8 @@ class SettleBackend(abc.ABC):
             Stop once a :class:`RestMonitor` over the free blocks says so.
         progress : callable, optional
             Called now and then with (simulated seconds, ``seconds``).
+        stop : callable, optional
+            Asked between checks; once it says True the run raises :class:`Stopped`.
 
         Returns
         -------
@@ -259,7 +266,7 @@ class SettleBackend(abc.ABC):
     def _run(self, advance: Callable[[int], None],
              observe: Callable[[], tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
              radii: np.ndarray, seconds: float, early_stop: bool,
-             progress: Progress | None) -> tuple[int, bool, float]:
+             progress: Progress | None, stop: Callable[[], bool] | None = None) -> tuple[int, bool, float]:
         """The loop every backend shares: step, report progress, stop once at rest.
 
         ``advance(n)`` runs ``n`` steps and raises :class:`Diverged` if the
@@ -275,6 +282,8 @@ class SettleBackend(abc.ABC):
             n = min(self.check_every, total - steps)
             advance(n)
             steps += n
+            if stop is not None and stop():
+                raise Stopped(f"stopped by its caller after {steps} steps")
             # Simulated time as steps x step: an engine's own clock gathers rounding error.
             t = steps * self.timestep
             state = observe()

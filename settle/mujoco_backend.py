@@ -80,7 +80,7 @@ Multi-point CCD
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -297,6 +297,7 @@ class MujocoBackend(SettleBackend):
         seconds: float,
         early_stop: bool,
         progress: Progress | None = None,
+        stop: Callable[[], bool] | None = None,
     ) -> Run:
         model = self.build(scene, bodies)
         data = mujoco.MjData(model)
@@ -329,7 +330,7 @@ class MujocoBackend(SettleBackend):
 
         steps, at_rest, peak = self._run(
             advance, lambda: (q[:, :3], q[:, 3:], v[:, :3], v[:, 3:]),
-            np.array([b.block.bounding_radius for b in free]), seconds, early_stop, progress)
+            np.array([b.block.bounding_radius for b in free]), seconds, early_stop, progress, stop)
         poses = {b.id: Pose(q[k, :3], q[k, 3:]) for k, b in enumerate(free)}
         return Run(poses, steps * self.timestep, steps, at_rest, peak)
 

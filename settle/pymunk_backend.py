@@ -35,7 +35,7 @@ Sleeping
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import pymunk
@@ -171,6 +171,7 @@ class PymunkBackend(SettleBackend):
         seconds: float,
         early_stop: bool,
         progress: Progress | None = None,
+        stop: Callable[[], bool] | None = None,
     ) -> Run:
         space, free = self.build(scene, bodies)
         moving = [b for b in bodies if b.movable]
@@ -197,7 +198,7 @@ class PymunkBackend(SettleBackend):
 
         steps, at_rest, peak = self._run(advance, observe,
                                          np.array([b.block.bounding_radius for b in moving]),
-                                         seconds, early_stop, progress)
+                                         seconds, early_stop, progress, stop)
         poses = {
             body.id: from_plane((b.position.x, b.position.y), b.angle, float(body.pose.position[1]))
             for body, b in zip(moving, free, strict=True)

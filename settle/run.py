@@ -11,7 +11,7 @@ implement, and the verdict, are in :mod:`settle.base`.
 from __future__ import annotations
 
 import time
-from collections.abc import Collection, Sequence
+from collections.abc import Callable, Collection, Sequence
 
 import numpy as np
 
@@ -52,6 +52,7 @@ def settle(
     thresholds: Thresholds | None = None,
     early_stop: bool = True,
     progress: Progress | None = None,
+    stop: Callable[[], bool] | None = None,
 ) -> SettleResult:
     """Settle blocks under gravity and judge whether they stand.
 
@@ -77,6 +78,10 @@ def settle(
         Stop once every free block has come to rest (see ``tol.rest_time``).
     progress : callable, optional
         Called now and then with (simulated seconds, ``seconds``).
+    stop : callable, optional
+        Asked every few steps; once it says True the settle raises
+        :class:`settle.base.Stopped` (a caller's deadline: the optimizer's
+        confirming settles of slender meshes ran 5 s past its time limit).
 
     Returns
     -------
@@ -119,7 +124,7 @@ def settle(
 
     diverged = False
     try:
-        run = (backend.simulate(scene, bodies, float(seconds), early_stop, progress)
+        run = (backend.simulate(scene, bodies, float(seconds), early_stop, progress, stop)
                if any(b.movable for b in bodies) else Run({}, 0.0, 0, True))
     except Diverged:
         # A wedge the engine's contacts could not resolve: no answer, so nothing is known to stand.

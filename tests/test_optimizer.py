@@ -943,3 +943,50 @@ def test_a_search_far_short_of_a_large_count_is_confirmed_in_the_time_its_own_ch
     r = optimize(scene, seed=1, time_limit=5.0, clock=clock)
     assert r.seconds <= 5.0 + 2.0 and 0 < r.blocks < scene.required_blocks
     assert r.stable is True, r.settle
+
+
+def test_a_settle_is_stopped_when_asked_and_otherwise_left_alone(tiny):
+    """``settle(stop=...)``: asked every few steps, True raises ``Stopped``; never True, the
+    result is the one without it, bit for bit."""
+    from settle import Stopped, settle
+
+    beam = BeamSearch(restarts=1, origins=3)
+    placed = beam.run(problem(tiny), None, np.random.default_rng(1)).build.placed()
+    asked = []
+    with pytest.raises(Stopped):
+        settle(tiny, placed, seed=1, stop=lambda: asked.append(1) or True)
+    assert len(asked) == 1
+    plain, watched = settle(tiny, placed, seed=1), settle(tiny, placed, seed=1, stop=lambda: False)
+    assert [(b.id, b.pose.position.tobytes()) for b in plain.blocks] == [
+        (b.id, b.pose.position.tobytes()) for b in watched.blocks]
+
+
+def test_a_confirming_settle_that_outlasts_the_limit_is_stopped(tiny, monkeypatch):
+    """Slender mesh blocks settled at 0.15 s a step, and the confirming settle ran 5 s past the
+    time limit (7 s past a 2 s one with kept rods). Here each check of a settle's steps costs a
+    fake second: the settle is stopped a second past the confirmation's end, the layout is
+    written unsettled and says so, and the run keeps its limit."""
+    import optimizer.search.physics as physics
+    from optimizer.search.physics import SETTLE_GRACE, confirm
+
+    clock = WorkClock(per_drop=0.001, per_settle=0.0).install(monkeypatch)
+    settle = physics.settle
+
+    def slow(*args, stop=None, **kwargs):
+        # Whole-layout settles are the ones given a stop; a block let go alone stays quick.
+        def charged():
+            clock.t += 1.0
+            return stop()
+        return settle(*args, stop=charged if stop is not None else None, **kwargs)
+
+    monkeypatch.setattr(physics, "settle", slow)
+    pr = replace(problem(tiny, clock=clock), deadline=clock() + 5.0)
+    beam = BeamSearch(restarts=1, origins=3, judge=lambda p, b: True)
+    build = beam.run(pr, None, np.random.default_rng(1)).build
+    end = clock() + 3.0
+    same, confirmation = confirm(pr, build, np.random.default_rng(1), end=end)
+    assert confirmation.stopped and not confirmation.stable and same is build
+    assert end + SETTLE_GRACE < clock() <= end + SETTLE_GRACE + 1.0
+    r = optimize(tiny, seed=1, time_limit=20.0, clock=clock, cover=False)
+    assert r.settle == {"skipped": "time"} and r.stable is None and not r.valid
+    assert r.seconds <= 20.0 + 2.0 and "was not settled" in r.summary()

@@ -26,7 +26,7 @@ import numpy as np
 from geometry.clip import volume_inside
 from geometry.collision import collisions
 from geometry.constants import tol
-from settle import SettleResult, Thresholds, settle
+from settle import SettleResult, Stopped, Thresholds, settle
 
 from .beam import BeamSearch
 from .build import GROUND, Build, Candidate
@@ -45,6 +45,9 @@ ROUNDS = 3
 #: the confirmation calls stable has stood from its own random kick and from this one, so a
 #: user's own check of it says the same.
 VERDICT_SEED = 0
+#: Seconds past its end a confirmation's settle may run before it is stopped: the final checks
+#: have their own reserve after the end, and the time limit 2 s of grace.
+SETTLE_GRACE = 1.0
 
 
 def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
@@ -117,15 +120,22 @@ def local_check(problem: Problem, build: Build, candidate: Candidate) -> Candida
 
 
 def stands(problem: Problem, build: Build) -> bool:
-    """Whether a whole build passes the settle verdict (used to rank beam restarts)."""
-    return bool(whole_settle(problem, build.placed(), seed=0).stable)
+    """Whether a whole build passes the settle verdict (used to rank beam restarts); False if the
+    settle runs ``SETTLE_GRACE`` past the search's deadline (117 kept rods: 5.8 s of a 2 s limit)."""
+    try:
+        return bool(whole_settle(replace(problem, settle_until=problem.deadline + SETTLE_GRACE),
+                                 build.placed(), seed=0).stable)
+    except Stopped:
+        return False
 
 
 def whole_settle(problem: Problem, placed: list, **options) -> SettleResult:
     """``settle`` of a whole layout, timed on the problem's clock into ``problem.meter``: what
     the settles that confirm a layout cost on this machine now."""
     t0 = problem.now()
-    result = settle(problem.scene, placed, **options)
+    until = problem.settle_until
+    stop = None if until is None else (lambda: problem.now() > until)
+    result = settle(problem.scene, placed, stop=stop, **options)
     problem.meter.record(len(placed), problem.now() - t0, problem.required)
     return result
 
@@ -167,6 +177,10 @@ class Confirmation:
         Of ``seconds``, the time spent laying again the sites of blocks a settle left
         out of the zone (not in :meth:`to_dict`): a confirmation lays them again only
         where its time allows, so the refill need not keep that time free for the next.
+    stopped : bool
+        A settle ran ``SETTLE_GRACE`` past the confirmation's end and was stopped
+        (:func:`confirm`): the build is as it was given, and nothing is known of it (not in
+        :meth:`to_dict`).
     """
 
     stable: bool
@@ -178,6 +192,7 @@ class Confirmation:
     repaired: int
     seconds: float
     relay_seconds: float = 0.0
+    stopped: bool = False
 
     def to_dict(self) -> dict:
         return {"stable": self.stable, "max_displacement_m": self.max_displacement_m,
@@ -255,6 +270,24 @@ def _repair_fits(rounds: int, left: float, cost: float) -> bool:
 def confirm(problem: Problem, build: Build, rng: np.random.Generator,
             origin: tuple[float, float] | None = None, end: float | None = None,
             whole: bool = False) -> tuple[Build, Confirmation]:
+    """:func:`_confirm`, its settles stopped ``SETTLE_GRACE`` past ``end`` (else the deadline).
+
+    The rounds time their settles and plan by them, but a layout's first settle has no
+    measure to go by: 117 kept rods 4 m long took 7.6 s for 50 steps, and a 2 s limit ran to
+    9.2 s. A settle so stopped leaves ``build`` as it was given, unconfirmed: its
+    Confirmation has ``stopped`` set (and is not stable).
+    """
+    start = problem.now()
+    limit = end if end is not None else problem.deadline
+    try:
+        return _confirm(replace(problem, settle_until=limit + SETTLE_GRACE), build, rng, origin, end, whole)
+    except Stopped:
+        return build, Confirmation(False, 0.0, 0.0, [], 0, 0, 0, problem.now() - start, stopped=True)
+
+
+def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
+             origin: tuple[float, float] | None, end: float | None,
+             whole: bool) -> tuple[Build, Confirmation]:
     """Settle a build; repair and settle again while blocks fail.
 
     A layout that stands is returned where the settle left it, if that is

@@ -96,6 +96,9 @@ class Problem:
         inject one to check the deadline logic without timing anything.
     meter : SettleMeter
         Whole-layout settles timed so far (shared by the copies ``dataclasses.replace`` makes).
+    settle_until : float, optional
+        Clock value past which a whole-layout settle is stopped (:class:`settle.Stopped`):
+        set by the confirming settles, which must end within the time limit.
     """
 
     scene: Scene
@@ -107,6 +110,7 @@ class Problem:
     report: Callable[[str, Build, str], None] | None = None
     clock: Clock = time.monotonic
     meter: SettleMeter = field(default_factory=SettleMeter, compare=False)
+    settle_until: float | None = None
 
     def now(self) -> float:
         return self.clock()

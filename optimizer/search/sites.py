@@ -42,7 +42,7 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
-    trials = kept_origins(problem, start) + [(0.0, 0.0)] + [
+    trials = kept_origins(problem, start, stop=stop) + [(0.0, 0.0)] + [
         (float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p))) for _ in range(probes - 1)]
     scored: list[tuple[float, int, tuple[float, float]]] = []
 
@@ -156,7 +156,8 @@ PROPOSERS = 32
 EXACT_MATCH = 0.05
 
 
-def kept_origins(problem: Problem, build: Build, most: int = 3) -> list[tuple[float, float]]:
+def kept_origins(problem: Problem, build: Build, most: int = 3, stop: float | None = None
+                 ) -> list[tuple[float, float]]:
     """Origins that lay the pattern through the most kept blocks (``Build.keep``), best first.
 
     A partial layout laid from the pattern (a reference cut short) is
@@ -183,7 +184,14 @@ def kept_origins(problem: Problem, build: Build, most: int = 3) -> list[tuple[fl
         for du, dv in ((0.0, 0.0), (lat.u, lat.v)):
             j = np.floor((x - du) / lat.w)
             proposals.append((x - du - j * lat.w, (y - dv - j * lat.q) % lat.p))
-    counted = sorted(((tuple(-n for n in _under(problem, o, kept)), i, o) for i, o in enumerate(proposals)))
+    # Counted until ``stop`` (``problem.now()``), the first always: 3005 kept blocks took 2.9 s
+    # here under a 2 s limit.
+    counted = []
+    for i, o in enumerate(proposals):
+        if counted and stop is not None and problem.now() > stop:
+            break
+        counted.append((tuple(-n for n in _under(problem, o, kept)), i, o))
+    counted.sort()
     out: list[tuple[float, float]] = []
     for minus, _, o in counted:
         if -minus[0] < 2 or len(out) == most:
