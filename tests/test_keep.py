@@ -12,7 +12,7 @@ from geometry.pose import Pose
 from geometry.scene import load_scene
 from geometry.tolerance import out_of_tolerance
 from optimizer.api import optimize
-from tests.conftest import shoha
+from tests.conftest import ROOT, shoha
 from tests.test_score_cli import REFERENCE, to_unity_save
 
 
@@ -289,3 +289,28 @@ def test_a_limit_too_short_to_settle_the_kept_blocks_is_kept_and_said(monkeypatc
     assert r.stable is None and not r.valid and r.settle == {"skipped": "time"}
     assert "the layout was not settled: one settle of it would not fit in the time limit" in r.summary()
     assert r.kept["blocks"] == 900 and r.collisions == 0
+
+
+def test_a_kept_mesh_block_named_from_another_folder_is_the_scenes_block(tmp_path):
+    """``optimize``'s own output, fed back with ``--keep``, names the scene's mesh relative to the
+    layout's folder (``mesh:../scene/shake.stl``), where the scene says ``mesh:shake.stl``: one
+    file, and it was refused as another block type (exit 2). Its blocks are kept as written."""
+    scene_dir, out_dir = tmp_path / "scene", tmp_path / "out"
+    scene_dir.mkdir()
+    out_dir.mkdir()
+    shoha("block", "export", "shake-4t", "--out", str(scene_dir / "shake.stl"))
+    text = (ROOT / "tests" / "data" / "tiny.toml").read_text().replace('"shake-4t"', '"mesh:shake.stl"')
+    (scene_dir / "tiny.toml").write_text(text)
+    scene = load_scene(str(scene_dir / "tiny.toml"))
+    block = scene.block
+    poses = [Pose([x, 2.0, -block.vertices[:, 2].min() + 0.01], [1, 0, 0, 0]) for x in (-1.0, 1.0)]
+    partial = out_dir / "partial.json"
+    write_layout(Layout("../scene/tiny.toml", [Placement(i, "mesh:../scene/shake.stl", p)
+                                               for i, p in enumerate(poses)], base_dir=str(out_dir)), partial)
+    assert '"mesh:../scene/shake.stl"' in partial.read_text()
+    r = shoha("optimize", str(scene_dir / "tiny.toml"), "--keep", str(partial), "--time-limit", "8",
+              "--out", str(out_dir / "done.json"), "--json")
+    assert r.returncode == 0, r.stderr
+    done = read_layout(out_dir / "done.json")
+    assert [p.pose.position.tobytes() for p in done.blocks[:2]] == [p.position.tobytes() for p in poses]
+    assert {p.type for p in done.blocks} == {"mesh:../scene/shake.stl"}

@@ -6,6 +6,7 @@ The only place where strategy names map to strategy classes.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import click
 
@@ -103,7 +104,12 @@ def optimize_cmd(scene_name: str, out: str, seed: int, time_limit: float | None,
         check_same_scene(partial_scene, scene, keep_path, against="the optimized")
         # The scene file the kept layout names was read too (a copy of SCENE, say).
         check_not_input(path, [(scene_file(partial_scene.source), "scene file of the --keep layout")])
-        keep = partial.blocks
+        # A mesh named by another path to the same file (the layout's own folder, not the
+        # scene's: optimize's output fed back) is the scene's block, under the scene's name.
+        own = mesh_path(scene.block_type, scene.base_dir)
+        keep = [replace(p, type=scene.block_type)
+                if own is not None and mesh_path(p.type, partial.base_dir) == own else p
+                for p in partial.blocks]
         last = max((p.id for p in keep), default=-1)
         if last + scene.required_blocks > MAX_ID:
             # New blocks are numbered on from the largest kept id, and must read back too.
