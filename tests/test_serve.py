@@ -842,3 +842,19 @@ def test_a_finished_replan_with_no_block_that_fits_is_unavailable_not_pending(tm
     hint = service.hint(sid)
     assert hint["status"] == "unavailable" and hint["source"] == "replan", hint
     assert "no block of the re-plan" in hint["message"]
+
+
+def test_a_client_gone_before_its_body_is_no_internal_error():
+    """A POST that promises 50 bytes, sends 16 and closes: the service was logging an internal
+    error with two tracebacks. It is the client's leaving, and the service goes on."""
+    import socket
+
+    with Served("--reference", str(REFERENCE), "--reference-time-limit", "0") as served:
+        with socket.create_connection(("127.0.0.1", served.port)) as s:
+            s.sendall(f"POST /sessions HTTP/1.1\r\nHost: 127.0.0.1:{served.port}\r\n".encode()
+                      + b"Content-Type: application/json\r\nContent-Length: 50\r\n\r\n{\"scene\": \"mini\"")
+            s.shutdown(socket.SHUT_WR)  # nothing more comes
+            s.recv(4096)
+        with httpx.Client(base_url=served.url) as http:
+            assert http.post("/sessions", json={"scene": "mini"}).status_code == 201
+    assert "internal error" not in served.log and "Traceback" not in served.log, served.log[-3000:]

@@ -43,7 +43,7 @@ from starlette.applications import Starlette
 from starlette.concurrency import run_in_threadpool
 from starlette.middleware import Middleware
 from starlette.middleware.cors import CORSMiddleware
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import HTMLResponse, RedirectResponse, Response
 from starlette.routing import Route, WebSocketRoute
 from starlette.types import ASGIApp, Receive, Scope, Send
@@ -134,11 +134,16 @@ async def read_json(request: Request) -> Any:
     if ascii_digits(length) and int(length) > MAX_BODY_BYTES:
         raise BodyError(413, f"body is {length} bytes, more than {MAX_BODY_BYTES}")
     chunks, size = [], 0
-    async for chunk in request.stream():
-        size += len(chunk)
-        if size > MAX_BODY_BYTES:
-            raise BodyError(413, f"body is more than {MAX_BODY_BYTES} bytes")
-        chunks.append(chunk)
+    try:
+        async for chunk in request.stream():
+            size += len(chunk)
+            if size > MAX_BODY_BYTES:
+                raise BodyError(413, f"body is more than {MAX_BODY_BYTES} bytes")
+            chunks.append(chunk)
+    except ClientDisconnect:
+        # The client went before its body came: no one to answer, and no fault of the service
+        # (it was logged as an internal error, with two tracebacks).
+        raise BodyError(400, "the client closed the connection before the body was sent") from None
     return parse_json(b"".join(chunks))
 
 
