@@ -42,6 +42,7 @@ import numpy as np
 from .blocks import Block, get_block
 from .constants import tol
 from .errors import InputError, finite_number, shown
+from .fileio import regular_file
 from .tolerance import Allowance, TrapezoidalPrism, design_prism, tolerance_prism
 
 SCENE_KINDS = ("3d", "section")
@@ -272,16 +273,23 @@ def load_scene(spec: str | os.PathLike, base_dir: str | os.PathLike | None = Non
     path = Path(spec).expanduser()
     if not path.is_absolute() and base_dir is not None and (Path(base_dir) / path).is_file():
         path = Path(base_dir) / path
-    if not path.is_file():
+    if not path.exists():
         names = ", ".join(builtin_scenes())
         raise InputError(f"{spec}: no such scene (built-in scenes: {names}; or a .toml file)")
+    size = regular_file(path).st_size  # a folder, device or pipe is named as such
+    if size > MAX_SCENE_BYTES:
+        # An 80 MB array in a scene file took 73 s and 1 GB to be refused for its unknown key.
+        raise InputError(f"{path}: scene file is {size} bytes, more than {MAX_SCENE_BYTES}")
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # an editor's byte-order mark is no TOML error
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read scene ({exc})") from None
     return parse_scene(text, source=str(path), base_dir=str(path.resolve().parent),
                        reference=str(path.resolve()))
 
+
+#: A scene file's largest size: the built-in ones are under 1 KB.
+MAX_SCENE_BYTES = 1 << 20
 
 _TOP_KEYS = {"name", "kind", "block", "target_porosity_percent", "required_blocks",
              "design", "tolerance", "foundation"}
