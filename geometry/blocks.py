@@ -553,7 +553,10 @@ def mesh_block(path: str, name: str | None = None) -> Block:
     size = regular_file(p).st_size  # not a folder, device or pipe (a pipe blocks its reader)
     if size > MAX_MESH_BYTES:
         raise InputError(f"{path}: mesh file is {size} bytes, more than {MAX_MESH_BYTES}")
-    raw = p.read_bytes()
+    try:
+        raw = p.read_bytes()
+    except OSError as exc:  # /proc/self/mem said only "Input/output error"
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     digest = hashlib.sha256(raw).hexdigest()
     vertices, faces = _load_mesh(p)
     mesh = trimesh.Trimesh(vertices, faces, process=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -327,3 +328,11 @@ def test_a_ring_of_boxes_is_cut_into_pieces_that_cover_it(tmp_path):
     in_pieces = np.any([p.contains(pts) for p in b.pieces], axis=0)
     assert in_pieces[in_mesh].mean() > 0.99, in_pieces[in_mesh].mean()  # CoACD is near, not exact
     assert not in_pieces[np.abs(pts[:, :2]).max(axis=1) < 0.45].any(), "no piece fills the hole"
+
+
+@pytest.mark.skipif(not Path("/proc/self/mem").exists(), reason="Linux /proc")
+def test_a_mesh_file_that_cannot_be_read_is_named():
+    """``/proc/self/mem`` is a regular file that refuses to be read: the message was only
+    "Input/output error", naming no file."""
+    with pytest.raises(InputError, match=r"mem: cannot read \(Input/output error\)"):
+        mesh_block("/proc/self/mem")
