@@ -140,6 +140,7 @@ def surface_samples(scene: Scene, spacing: float | None = None) -> SurfaceSample
 # --- a block's own surface, sampled -----------------------------------------------------------
 
 _SAMPLES: weakref.WeakKeyDictionary[Block, dict[float, np.ndarray]] = weakref.WeakKeyDictionary()
+_SPACINGS: weakref.WeakKeyDictionary[Block, dict[float, float]] = weakref.WeakKeyDictionary()
 
 
 def block_samples(block: Block, spacing: float, most: int | None = None) -> np.ndarray | None:
@@ -156,7 +157,7 @@ def block_samples(block: Block, spacing: float, most: int | None = None) -> np.n
     cache = _SAMPLES.setdefault(block, {})
     out = cache.get(spacing)
     if out is not None:
-        return out
+        return None if most is not None and len(out) > most else out
     tri = block.vertices[block.faces]
     pts = [block.vertices]
     while len(tri):
@@ -428,11 +429,17 @@ def _reaching(pts: np.ndarray, placed: Placed) -> Placed:
 def block_spacing(block: Block, step: float) -> float:
     """The spacing a block is sampled at: no finer than ``step``, its own H / CELLS_PER_H and
     MAX_BLOCK_SAMPLES over its surface, and widened by half again while that takes more than
-    MOST_BLOCK_SAMPLES."""
-    spacing = max(step, block.height / CELLS_PER_H, math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
-    while block_samples(block, spacing, most=MOST_BLOCK_SAMPLES) is None:
-        spacing *= 1.5
-    return spacing
+    MOST_BLOCK_SAMPLES, up to the block's width, where its corners alone are the samples (a
+    mesh of 98 000 corners has no fewer: the widening ran for ever)."""
+    chosen = _SPACINGS.setdefault(block, {})
+    if step not in chosen:
+        spacing = max(step, block.height / CELLS_PER_H,
+                      math.sqrt(4.0 * block.surface_area / MAX_BLOCK_SAMPLES))
+        while (block_samples(block, spacing, most=MOST_BLOCK_SAMPLES) is None
+               and spacing < 2.0 * block.bounding_radius):
+            spacing *= 1.5
+        chosen[step] = spacing
+    return chosen[step]
 
 
 def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact: bool = False,

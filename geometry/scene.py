@@ -445,7 +445,7 @@ def _num(table: dict[str, Any], key: str, source: str, default: float | None = N
     if not _is_num(v):
         raise InputError(f"{source}: {key} must be a finite number, not {shown(v)}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
-        raise InputError(f"{source}: {key} = {v} must be {'>' if lo_open else '>='} {lo}")
+        raise InputError(f"{source}: {key} = {shown(v)} must be {'>' if lo_open else '>='} {lo}")
     return float(v)
 
 

@@ -282,8 +282,6 @@ class SettleBackend(abc.ABC):
             n = min(self.check_every, total - steps)
             advance(n)
             steps += n
-            if stop is not None and stop():
-                raise Stopped(f"stopped by its caller after {steps} steps")
             # Simulated time as steps x step: an engine's own clock gathers rounding error.
             t = steps * self.timestep
             state = observe()
@@ -293,6 +291,8 @@ class SettleBackend(abc.ABC):
             if monitor.update(t, *state) and early_stop:
                 at_rest = True
                 break
+            if steps < total and stop is not None and stop():  # a settle that ended keeps its answer
+                raise Stopped(f"stopped by its caller after {steps} steps")
         return steps, at_rest, monitor.peak
 
 

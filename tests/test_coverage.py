@@ -177,6 +177,28 @@ def test_a_sliver_block_is_sampled_no_finer_than_its_bound_allows(tmp_path, mini
     assert c.max_bare_m == pytest.approx(exact.max(), abs=1e-12)
 
 
+@pytest.mark.timeout(120)
+def test_a_block_of_more_corners_than_the_sample_bound_is_sampled_at_its_corners(tmp_path):
+    """A 2 x 1 x 1 m box cut into 196 608 triangles has 98 306 corners, more than
+    MOST_BLOCK_SAMPLES, at any spacing: the widening ran for ever (every coverage of it hung).
+    It stops at the block's width, where the corners are the samples; and a refusal by the
+    bound holds when asked again (the cache gave the refused samples the second time)."""
+    import geometry.coverage as cov
+    from geometry.blocks import get_block
+
+    mesh = trimesh.creation.box(extents=[2.0, 1.0, 1.0])
+    for _ in range(7):
+        mesh = mesh.subdivide()
+    path = tmp_path / "fine-box.stl"
+    mesh.export(path)
+    block = get_block(f"mesh:{path}")
+    assert len(block.vertices) > cov.MOST_BLOCK_SAMPLES
+    spacing = cov.block_spacing(block, 0.0)
+    assert 2.0 * block.bounding_radius <= spacing < 3.0 * block.bounding_radius
+    assert len(block_samples(block, spacing)) == len(block.vertices)
+    assert block_samples(block, spacing, most=cov.MOST_BLOCK_SAMPLES) is None  # asked again: still None
+
+
 def test_tiny_blocks_on_a_big_mound_are_measured_with_a_bounded_sample():
     """5 cm tetrapods on mini would have taken 19 million samples of the surface."""
     from geometry.coverage import MAX_SAMPLES

@@ -135,9 +135,11 @@ def whole_settle(problem: Problem, placed: list, **options) -> SettleResult:
     t0 = problem.now()
     until = problem.settle_until
     stop = None if until is None else (lambda: problem.now() > until)
-    result = settle(problem.scene, placed, stop=stop, **options)
-    problem.meter.record(len(placed), problem.now() - t0, problem.required)
-    return result
+    try:
+        return settle(problem.scene, placed, stop=stop, **options)
+    finally:
+        # A stopped settle's time too, as the least it costs: the estimates then see how slow it is.
+        problem.meter.record(len(placed), problem.now() - t0, problem.required)
 
 
 def carried_closure(build: Build, keys: set[int]) -> set[int]:
@@ -274,20 +276,27 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
 
     The rounds time their settles and plan by them, but a layout's first settle has no
     measure to go by: 117 kept rods 4 m long took 7.6 s for 50 steps, and a 2 s limit ran to
-    9.2 s. A settle so stopped leaves ``build`` as it was given, unconfirmed: its
-    Confirmation has ``stopped`` set (and is not stable).
+    9.2 s. A settle so stopped leaves the last layout that stood, if one did (a stopped
+    adoption or repair round does not undo a verdict already given); else ``build`` as it was
+    given, unconfirmed: its Confirmation has ``stopped`` set (and is not stable).
     """
     start = problem.now()
     limit = end if end is not None else problem.deadline
+    stood: list[tuple[Build, SettleResult]] = []  # the last layout that stood, as _confirm goes
     try:
-        return _confirm(replace(problem, settle_until=limit + SETTLE_GRACE), build, rng, origin, end, whole)
+        return _confirm(replace(problem, settle_until=limit + SETTLE_GRACE), build, rng, origin, end, whole,
+                        stood)
     except Stopped:
+        if stood:
+            last, result = stood[-1]
+            return last, Confirmation(True, result.max_displacement_m, result.max_rotation_deg, [], 0, 0, 0,
+                                      problem.now() - start)
         return build, Confirmation(False, 0.0, 0.0, [], 0, 0, 0, problem.now() - start, stopped=True)
 
 
 def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
              origin: tuple[float, float] | None, end: float | None,
-             whole: bool) -> tuple[Build, Confirmation]:
+             whole: bool, stood: list | None = None) -> tuple[Build, Confirmation]:
     """Settle a build; repair and settle again while blocks fail.
 
     A layout that stands is returned where the settle left it, if that is
@@ -336,6 +345,8 @@ def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
         if not len(build):
             break
         if result.stable:
+            if stood is not None:
+                stood.append((build, result))
             # A layout that stands is written where it stands: each block settled onto what
             # carries it, touching it, rather than at its first contact on the way down
             # (the interlock count sees the difference). Only if that is valid and stands.
@@ -367,6 +378,8 @@ def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
                 # sites are laid again, and the layout kept as it is unless that stands with more.
                 if fallback is None or len(build) > len(fallback[0]):
                     fallback = (build, result)  # the largest that stood
+                    if stood is not None:
+                        stood.append(fallback)
                 rounds += 1
                 t = problem.now()
                 build = _repaired(problem, build, origin, limit - cost, rng)
