@@ -336,7 +336,7 @@ def parse_scene(text: str, source: str, base_dir: str | None, reference: str | N
     length = _num(design, "length_m", source, lo=0.0, lo_open=True)
     rise_run = design.get("slope_rise_run")
     if (not isinstance(rise_run, list) or len(rise_run) != 2
-            or not all(_is_num(v) and 0 < v < 1e6 for v in rise_run)
+            or not all(finite_number(v) and 0 < v < 1e6 for v in rise_run)
             or not 1e-3 <= rise_run[1] / rise_run[0] <= 1e3):
         raise InputError(f"{source}: [design] slope_rise_run must be two positive numbers below 1e6, "
                          "the run from 1/1000 to 1000 times the rise, e.g. [3, 4]")
@@ -431,10 +431,6 @@ def _table(data: dict[str, Any], key: str, source: str, required: bool = False) 
     return value
 
 
-def _is_num(v: Any) -> bool:
-    return finite_number(v)
-
-
 def _num(table: dict[str, Any], key: str, source: str, default: float | None = None,
          lo: float | None = None, lo_open: bool = False) -> float:
     if key not in table:
@@ -442,7 +438,7 @@ def _num(table: dict[str, Any], key: str, source: str, default: float | None = N
             raise InputError(f"{source}: missing {key}")
         return float(default)
     v = table[key]
-    if not _is_num(v):
+    if not finite_number(v):
         raise InputError(f"{source}: {key} must be a finite number, not {shown(v)}")
     if lo is not None and (v < lo or (lo_open and v == lo)):
         raise InputError(f"{source}: {key} = {shown(v)} must be {'>' if lo_open else '>='} {lo}")

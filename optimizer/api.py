@@ -69,7 +69,7 @@ from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
-from .search.physics import SETTLE_GRACE, confirm, judged, raised_check, stands, verdict
+from .search.physics import confirm, judged, raised_check, settling_by, stands, verdict
 from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
 from .search.toe import ToeRows
 from .search.trim import over, trim_moves
@@ -1008,8 +1008,7 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
         return attempt
     t1 = clock()
     try:
-        result = verdict(replace(problem, settle_until=end + SETTLE_GRACE), build.placed(), rng,
-                         movable=judged(build))
+        result = verdict(settling_by(problem, end), build.placed(), rng, movable=judged(build))
     except Stopped:
         return attempt  # it ran past the end: not known to stand (``stood`` stays None)
     phase["stood"] = bool(result.stable)

@@ -119,12 +119,17 @@ def local_check(problem: Problem, build: Build, candidate: Candidate) -> Candida
     return settle_in(problem, build, candidate)
 
 
+def settling_by(problem: Problem, end: float) -> Problem:
+    """``problem`` with its whole-layout settles stopped ``SETTLE_GRACE`` past ``end``
+    (:class:`settle.Stopped`, which the caller catches)."""
+    return replace(problem, settle_until=end + SETTLE_GRACE)
+
+
 def stands(problem: Problem, build: Build) -> bool:
     """Whether a whole build passes the settle verdict (used to rank beam restarts); False if the
     settle runs ``SETTLE_GRACE`` past the search's deadline (117 kept rods: 5.8 s of a 2 s limit)."""
     try:
-        return bool(whole_settle(replace(problem, settle_until=problem.deadline + SETTLE_GRACE),
-                                 build.placed(), seed=0).stable)
+        return bool(whole_settle(settling_by(problem, problem.deadline), build.placed(), seed=0).stable)
     except Stopped:
         return False
 
@@ -284,8 +289,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
     limit = end if end is not None else problem.deadline
     stood: list[tuple[Build, SettleResult]] = []  # the last layout that stood, as _confirm goes
     try:
-        return _confirm(replace(problem, settle_until=limit + SETTLE_GRACE), build, rng, origin, end, whole,
-                        stood)
+        return _confirm(settling_by(problem, limit), build, rng, origin, end, whole, stood)
     except Stopped:
         if stood:
             last, result = stood[-1]
@@ -296,7 +300,7 @@ def confirm(problem: Problem, build: Build, rng: np.random.Generator,
 
 def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
              origin: tuple[float, float] | None, end: float | None,
-             whole: bool, stood: list | None = None) -> tuple[Build, Confirmation]:
+             whole: bool, stood: list[tuple[Build, SettleResult]]) -> tuple[Build, Confirmation]:
     """Settle a build; repair and settle again while blocks fail.
 
     A layout that stands is returned where the settle left it, if that is
@@ -330,6 +334,9 @@ def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
     3) the 7 s a fruitless laying again took left no time for the refill
     that reached the count.
 
+    Each layout that stands is appended to ``stood`` as the rounds go: :func:`confirm`
+    returns the last of them where a settle after it is stopped.
+
     Returns the build and its :class:`Confirmation`.
     """
     start = problem.now()
@@ -345,8 +352,7 @@ def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
         if not len(build):
             break
         if result.stable:
-            if stood is not None:
-                stood.append((build, result))
+            stood.append((build, result))  # what confirm keeps if a settle after this is stopped
             # A layout that stands is written where it stands: each block settled onto what
             # carries it, touching it, rather than at its first contact on the way down
             # (the interlock count sees the difference). Only if that is valid and stands.
@@ -378,8 +384,7 @@ def _confirm(problem: Problem, build: Build, rng: np.random.Generator,
                 # sites are laid again, and the layout kept as it is unless that stands with more.
                 if fallback is None or len(build) > len(fallback[0]):
                     fallback = (build, result)  # the largest that stood
-                    if stood is not None:
-                        stood.append(fallback)
+                    stood.append(fallback)
                 rounds += 1
                 t = problem.now()
                 build = _repaired(problem, build, origin, limit - cost, rng)
