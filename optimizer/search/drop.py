@@ -19,6 +19,7 @@ nodes and at the block's lower vertices.
 from __future__ import annotations
 
 import weakref
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -127,20 +128,6 @@ def _side(faces: _Faces, turned: ConvexPolytope, up: np.ndarray, sign: float
     return turned.vertices[edges], turned.vertices[faces.incidence[:, facing].any(axis=1)]
 
 
-def _segment_crossings(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Crossing points, in the x-y plane, of segments ``a`` (n, 2, 2) and ``b`` (m, 2, 2)."""
-    p, r = a[:, None, 0, :], (a[:, 1] - a[:, 0])[:, None, :]
-    q, s = b[None, :, 0, :], (b[:, 1] - b[:, 0])[None, :, :]
-    denom = r[..., 0] * s[..., 1] - r[..., 1] * s[..., 0]
-    qp = q - p
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (qp[..., 0] * s[..., 1] - qp[..., 1] * s[..., 0]) / denom
-        u = (qp[..., 0] * r[..., 1] - qp[..., 1] * r[..., 0]) / denom
-    ok = (np.abs(denom) > tol.parallel) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
-    ii, jj = np.nonzero(ok)
-    return p[ii, 0] + t[ii, jj, None] * r[ii, 0]
-
-
 def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarray], fixed: ConvexPolytope,
                 fixed_upper: tuple[np.ndarray, np.ndarray], offset_xy: np.ndarray) -> float:
     """Lowest height ``z`` at which ``moving + (offset_xy, z)`` clears ``fixed``.
@@ -150,21 +137,27 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
     ``moving_lower`` and ``fixed_upper`` are the (edges, vertices) of the
     moving piece's lower side and the fixed piece's upper side, whose
     projections hold every breakpoint of bottom_P and top_Q.
+
+    The breakpoints are visited one by one in compiled code (numba,
+    :mod:`optimizer.search._contact`): the arrays are a few dozen rows, and numpy's cost per
+    call, not the arithmetic, was the drop's time (162 us a pair on ``mini``'s
+    blocks, against about 15 us; 37 of the 115 s of an ``optimize`` of
+    ``mini-mesh``, 2026-11-28).
     """
     if len(moving.normals) + len(fixed.normals) > MANY_PLANES:
         return _rest_height_lp(moving, fixed, offset_xy)
     me, mvert = moving_lower
     fe, fvert = fixed_upper
-    mv = mvert[:, :2] + offset_xy
-    pts = np.concatenate([mv, fvert[:, :2], _segment_crossings(me[:, :, :2] + offset_xy, fe[:, :, :2])])
-    # Vertical extents of both pieces on these lines; the moving one back at the origin.
-    q_lo, q_hi = column_intervals(fixed.normals, fixed.offsets, pts)
-    p_lo, p_hi = column_intervals(moving.normals, moving.offsets, pts - offset_xy)
-    slack = tol.distance
-    ok = (q_hi >= q_lo - slack) & (p_hi >= p_lo - slack)
-    if not ok.any():
-        return -np.inf
-    return float(np.max(q_hi[ok] - p_lo[ok]))
+    return _kernel()(moving.normals, moving.offsets, me, mvert, fixed.normals, fixed.offsets, fe, fvert,
+                     float(offset_xy[0]), float(offset_xy[1]), tol.distance, tol.parallel)
+
+
+def _kernel():
+    """The compiled loop (:mod:`optimizer.search._contact`), imported on first use: importing
+    numba takes 0.6 s, which the verbs that lower no block do not pay."""
+    from ._contact import rest_height_kernel
+
+    return rest_height_kernel
 
 
 #: Pieces with more planes than this between them are lowered by a linear programme: the
@@ -200,8 +193,10 @@ class DropWorld:
     def __init__(self, foundation: Foundation, cell: float = 2.0):
         self.foundation = foundation
         self.cell = cell
+        # Per key: its shape, position, pieces where it stands, their upper sides, and their
+        # bounding boxes (p, 2, 3).
         self._placed: dict[int, tuple[Shape, np.ndarray, list[ConvexPolytope],
-                                      list[tuple[np.ndarray, np.ndarray]]]] = {}
+                                      list[tuple[np.ndarray, np.ndarray]], np.ndarray]] = {}
         self._grid: dict[tuple[int, int], set[int]] = {}
         self._max_r = 0.0
 
@@ -219,7 +214,7 @@ class DropWorld:
 
     def poses(self) -> dict[int, Pose]:
         """Where each placed block stands, by key: the inverse of :meth:`of`."""
-        return {k: Pose(pos, shape.quaternion) for k, (shape, pos, _, _) in self._placed.items()}
+        return {k: Pose(pos, shape.quaternion) for k, (shape, pos, *_) in self._placed.items()}
 
     def _cells(self, x: float, y: float, r: float) -> list[tuple[int, int]]:
         c = self.cell
@@ -231,19 +226,19 @@ class DropWorld:
         pieces = [ConvexPolytope(p.vertices + position, p.faces, p.normals, p.offsets + p.normals @ position)
                   for p in shape.pieces]
         upper = [(e + position, v + position) for e, v in shape.upper]
-        self._placed[key] = (shape, position, pieces, upper)
+        self._placed[key] = (shape, position, pieces, upper, np.array([p.aabb for p in pieces]))
         for cell in self._cells(position[0], position[1], shape.radius_xy):
             self._grid.setdefault(cell, set()).add(key)
         self._max_r = max(self._max_r, shape.radius_xy)
 
     def remove(self, key: int) -> None:
-        shape, position, _, _ = self._placed.pop(key)
+        shape, position, *_ = self._placed.pop(key)
         for cell in self._cells(position[0], position[1], shape.radius_xy):
             self._grid[cell].discard(key)
 
     def top(self) -> float:
         """The highest point of the placed blocks, m; 0.0 while none is placed."""
-        return max((float(pos[2] + shape.highs.max()) for shape, pos, _, _ in self._placed.values()),
+        return max((float(pos[2] + shape.highs.max()) for shape, pos, *_ in self._placed.values()),
                    default=0.0)
 
     def copy(self) -> DropWorld:
@@ -261,7 +256,7 @@ class DropWorld:
             keys |= self._grid.get(cell, set())
         out = []
         for k in keys - exclude:
-            shape, pos, _, _ = self._placed[k]
+            shape, pos, *_ = self._placed[k]
             if (pos[0] - x) ** 2 + (pos[1] - y) ** 2 <= (r + shape.radius_xy) ** 2:
                 out.append(k)
         return out
@@ -310,19 +305,7 @@ class DropWorld:
         if ground is None:
             ground = self.ground_height(shape, x, y)
         best = ground
-        pairs = []
-        for k in self.under(x, y, shape.radius_xy, exclude):
-            _, _, pieces, edges = self._placed[k]
-            for i in range(len(shape.pieces)):
-                mb = shape.xy_boxes[i] + offset
-                for fp, fe in zip(pieces, edges, strict=True):
-                    fb = fp.aabb
-                    if (mb[0, 0] > fb[1, 0] or fb[0, 0] > mb[1, 0]
-                            or mb[0, 1] > fb[1, 1] or fb[0, 1] > mb[1, 1]):
-                        continue
-                    # No placement can rise above this pair's top minus bottom.
-                    pairs.append((fb[1, 2] - shape.lows[i], k, i, fp, fe))
-        pairs.sort(key=lambda p: -p[0])
+        pairs = self._pairs(shape, offset, self.under(x, y, shape.radius_xy, exclude))
         heights: list[tuple[float, int]] = []
         for bound, k, i, fp, fe in pairs:
             if bound < best - tol.drop_resolution:
@@ -334,6 +317,29 @@ class DropWorld:
         support = sorted({k for z, k in heights if z >= best - tol.drop_resolution})
         return best + tol.drop_resolution, support, ground >= best - tol.drop_resolution
 
+    def _pairs(self, shape: Shape, offset: np.ndarray, keys: list[int]
+               ) -> Iterator[tuple[float, int, int, ConvexPolytope, tuple[np.ndarray, np.ndarray]]]:
+        """The pairs (a piece of ``shape`` at ``offset``, a piece of a block ``keys``) whose
+        footprint boxes overlap, highest first by the most the moving piece can rest at on
+        that one (its top less the moving piece's lowest point): ``(bound, key, moving piece,
+        fixed piece, its upper side)``. The boxes of every pair are compared at once (a drop
+        among a dozen blocks of six pieces each weighs hundreds of pairs)."""
+        if not keys:
+            return
+        entries = [self._placed[k] for k in keys]
+        boxes = np.concatenate([e[4] for e in entries])  # (f, 2, 3)
+        owner = np.repeat(np.arange(len(keys)), [len(e[4]) for e in entries])
+        piece = np.concatenate([np.arange(len(e[4])) for e in entries])
+        mb = shape.xy_boxes + offset  # (m, 2, 2)
+        apart = ((mb[:, None, 0, 0] > boxes[None, :, 1, 0]) | (boxes[None, :, 0, 0] > mb[:, None, 1, 0])
+                 | (mb[:, None, 0, 1] > boxes[None, :, 1, 1]) | (boxes[None, :, 0, 1] > mb[:, None, 1, 1]))
+        ii, jj = np.nonzero(~apart)
+        bounds = boxes[jj, 1, 2] - shape.lows[ii]
+        for n in np.argsort(-bounds, kind="stable"):
+            i, j = int(ii[n]), int(jj[n])
+            _, _, pieces, upper, _ = entries[owner[j]]
+            yield float(bounds[n]), keys[owner[j]], i, pieces[piece[j]], upper[piece[j]]
+
     def blockers(self, shape: Shape, x: float, y: float, floor: float,
                  exclude: frozenset[int] = frozenset()) -> set[int]:
         """Placed blocks that would stop ``shape``, lowered at (x, y), above height ``floor``.
@@ -343,20 +349,11 @@ class DropWorld:
         """
         offset = np.array([x, y])
         out: set[int] = set()
-        for k in self.under(x, y, shape.radius_xy, exclude):
-            _, _, pieces, edges = self._placed[k]
-            for i in range(len(shape.pieces)):
-                if k in out:
-                    break
-                mb = shape.xy_boxes[i] + offset
-                for fp, fe in zip(pieces, edges, strict=True):
-                    fb = fp.aabb
-                    if (fb[1, 2] - shape.lows[i] <= floor or mb[0, 0] > fb[1, 0] or fb[0, 0] > mb[1, 0]
-                            or mb[0, 1] > fb[1, 1] or fb[0, 1] > mb[1, 1]):
-                        continue
-                    if rest_height(shape.pieces[i], shape.lower[i], fp, fe, offset) > floor:
-                        out.add(k)
-                        break
+        for bound, k, i, fp, fe in self._pairs(shape, offset, self.under(x, y, shape.radius_xy, exclude)):
+            if bound <= floor:
+                break  # highest first: no pair after this one rises above the floor either
+            if k not in out and rest_height(shape.pieces[i], shape.lower[i], fp, fe, offset) > floor:
+                out.add(k)
         return out
 
     def pose(self, shape: Shape, x: float, y: float, z: float) -> Pose:
