@@ -961,6 +961,47 @@ def test_a_settle_is_stopped_when_asked_and_otherwise_left_alone(tiny):
         (b.id, b.pose.position.tobytes()) for b in watched.blocks]
 
 
+def test_a_layout_that_stood_is_kept_when_a_settle_after_its_verdict_is_stopped(tiny, monkeypatch):
+    """A confirmation whose verdict stood, and whose next settle (taking the layout where the
+    verdict left it) ran past its end, returns the layout that stood, as stable: a stopped
+    settle after a verdict does not undo it. Here the verdict's two settles are quick, and
+    each check of any settle after them costs a fake second."""
+    import optimizer.search.physics as physics
+    from optimizer.search.build import GROUND, Build
+    from optimizer.search.physics import confirm
+    from optimizer.search.shapes import ShapeCache
+
+    clock = WorkClock(per_drop=0.0, per_settle=0.0).install(monkeypatch)
+    settle = physics.settle
+    stopped = []
+
+    def slow_after_verdict(*args, stop=None, **kwargs):
+        if stop is None:
+            return settle(*args, **kwargs)
+        stopped.append(len(stopped))
+
+        def charged():
+            if len(stopped) > 2:  # the verdict's two settles (random kick, VERDICT_SEED) are quick
+                clock.t += 1.0
+            return stop()
+        return settle(*args, stop=charged, **kwargs)
+
+    monkeypatch.setattr(physics, "settle", slow_after_verdict)
+    pr = replace(problem(tiny, clock=clock), deadline=clock() + 50.0)
+    # Three blocks on the ground far apart, each on its own: a layout that stands.
+    build = Build(tiny)
+    shape = ShapeCache(tiny.block).hung("crown", 0.0)
+    for x in (-2.6, 0.0, 2.6):
+        c = build.lower(shape, x, 2.0)
+        assert c is not None and c.support == (GROUND,)
+        build.place(c)
+    end = clock() + 3.0
+    kept, confirmation = confirm(pr, build, np.random.default_rng(1), end=end)
+    assert len(stopped) >= 3, "a settle after the verdict was run, and stopped"
+    assert confirmation.stable and not confirmation.stopped
+    assert kept is build and confirmation.adopted == 0
+
+
 def test_a_confirming_settle_that_outlasts_the_limit_is_stopped(tiny, monkeypatch):
     """Slender mesh blocks settled at 0.15 s a step, and the confirming settle ran 5 s past the
     time limit (7 s past a 2 s one with kept rods). Here each check of a settle's steps costs a
