@@ -303,6 +303,10 @@ def values() -> dict[str, Any]:
             v["collision_1000"] = times(min(float(r["speedup_check"]) for r in big))
             if manager:
                 v["collision_manager_1000"] = times(min(float(r["shoha_over_manager"]) for r in big))
+
+    drops = rows("drop_speed")
+    if drops:
+        v["drop_speed"] = drops
     cq = rows("collision_query_speed")
     if cq:
         v["query_table"] = table(
@@ -677,6 +681,12 @@ def readme_rows(v: dict[str, Any]) -> list[str]:
         out.append(
             f"| the same, against FCL's dynamic AABB tree | {v['collision_manager_1000']} | | | "
             "`collision_speed.csv` |"
+        )
+    for r in v.get("drop_speed", []):
+        out.append(
+            f"| one block lowered until it touches, {r['case']} | {float(r['drop_us']):.0f} µs a drop; "
+            f"contact {float(r['pair_us']):.1f} µs compiled, {float(r['pair_numpy_us']):.0f} µs in numpy; "
+            f"same supports {r['same_supports']} | | | `drop_speed.csv` |"
         )
     for scene, r in v.get("optimizer_runs", {}).items():
         if scene in ("mini", "full"):
