@@ -1,9 +1,11 @@
 """The first-contact loop of :func:`optimizer.search.drop.rest_height`, compiled by numba.
 
 Its arrays are a few dozen rows each: in numpy the cost per call, not the
-arithmetic, was the drop's time. Compiled once per machine and cached on disk
-(``cache=True``, beside this file or in numba's user cache where that is not
-writable).
+arithmetic, was the drop's time (``benchmarks/drop_speed.py``). Compiled once
+per machine and cached on disk beside this file, or in numba's user cache
+(``NUMBA_CACHE_DIR``) where this folder is not writable. Where neither is (a
+read-only install run by a user with no writable home), numba refuses to cache
+at import: the loop is then compiled anew in each process, about a second.
 """
 
 from __future__ import annotations
@@ -12,24 +14,48 @@ import numba
 import numpy as np
 
 
-@numba.njit(cache=True)
+def _jit(function):
+    """``function`` compiled, cached on disk where numba finds a place for it, else not."""
+    try:
+        return numba.njit(cache=True)(function)
+    except RuntimeError:  # "cannot cache function ...: no locator available"
+        return numba.njit(function)
+
+
+@_jit
 def column(normals, offsets, x, y, eps):  # pragma: no cover - compiled
-    """Where the vertical line through (x, y) crosses the polytope ``normals @ p <= offsets``:
-    ``(lo, hi)``, with ``lo > hi`` where it misses (as :func:`geometry.polytope.column_intervals`)."""
+    """Where the vertical line through (x, y) crosses the polytope ``normals @ p <= offsets``.
+
+    Parameters
+    ----------
+    normals : (k, 3) float
+    offsets : (k,) float, metres
+    x, y : float, metres
+    eps : float, metres
+        Planes whose normal's z is within it are vertical.
+
+    Returns ``(lo, hi)``, with ``lo > hi`` where the line misses (as
+    :func:`geometry.polytope.column_intervals`); NaN where a coordinate is NaN, as numpy
+    gave (a bound is replaced unless the new value is on the kept side of it).
+    """
     lo, hi = -np.inf, np.inf
     for k in range(normals.shape[0]):
         nz = normals[k, 2]
         rhs = offsets[k] - (x * normals[k, 0] + y * normals[k, 1])
         if nz > eps:
-            hi = min(hi, rhs / nz)
+            v = rhs / nz
+            if not v >= hi:
+                hi = v
         elif nz < -eps:
-            lo = max(lo, rhs / nz)
+            v = rhs / nz
+            if not v <= lo:
+                lo = v
         elif rhs < -eps:
             return np.inf, -np.inf
     return lo, hi
 
 
-@numba.njit(cache=True)
+@_jit
 def height_at(mn, mo, fn, fo, ox, oy, x, y, eps, best):  # pragma: no cover - compiled
     """``best``, or the fixed piece's top less the moving piece's bottom on the line through
     (x, y), if both pieces cross it and that is higher (the moving piece moved by (ox, oy))."""
@@ -42,12 +68,26 @@ def height_at(mn, mo, fn, fo, ox, oy, x, y, eps, best):  # pragma: no cover - co
     return max(best, q_hi - p_lo)
 
 
-@numba.njit(cache=True)
+@_jit
 def rest_height_kernel(mn, mo, me, mv, fn, fo, fe, fv, ox, oy, eps, parallel):  # pragma: no cover - compiled
-    """The largest top-less-bottom over the breakpoints, ``-inf`` where the pieces never meet:
-    the moving piece's lower vertices ``mv`` (moved by (ox, oy)), the fixed piece's upper
-    vertices ``fv``, and where a lower edge ``me`` of one crosses an upper edge ``fe`` of the
-    other in plan. ``mn, mo`` and ``fn, fo`` are the pieces' planes."""
+    """The largest top-less-bottom over the breakpoints, ``-inf`` where the pieces never meet.
+
+    Parameters
+    ----------
+    mn, mo : (k, 3), (k,) float
+        The moving piece's planes, its reference point at the origin.
+    me, mv : (e, 2, 3), (v, 3) float, metres
+        The edges and vertices of its lower side.
+    fn, fo, fe, fv : the same for the fixed piece, in the world frame (its upper side).
+    ox, oy : float, metres
+        Where the moving piece is lowered.
+    eps, parallel : float
+        ``tol.distance`` and ``tol.parallel``.
+
+    The breakpoints are the moving piece's lower vertices (moved by (ox, oy)), the fixed
+    piece's upper vertices, and where a lower edge of one crosses an upper edge of the
+    other in plan.
+    """
     best = -np.inf
     for i in range(mv.shape[0]):
         best = height_at(mn, mo, fn, fo, ox, oy, mv[i, 0] + ox, mv[i, 1] + oy, eps, best)

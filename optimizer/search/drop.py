@@ -18,6 +18,7 @@ nodes and at the block's lower vertices.
 
 from __future__ import annotations
 
+import functools
 import weakref
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -140,9 +141,8 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
 
     The breakpoints are visited one by one in compiled code (numba,
     :mod:`optimizer.search._contact`): the arrays are a few dozen rows, and numpy's cost per
-    call, not the arithmetic, was the drop's time (162 us a pair on ``mini``'s
-    blocks, against about 15 us; 37 of the 115 s of an ``optimize`` of
-    ``mini-mesh``, 2026-11-28).
+    call, not the arithmetic, was the drop's time. ``benchmarks/drop_speed.py`` measures
+    both (10 against 98 us a pair on ``mini``'s reference, 2026-11-28).
     """
     if len(moving.normals) + len(fixed.normals) > MANY_PLANES:
         return _rest_height_lp(moving, fixed, offset_xy)
@@ -152,6 +152,7 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
                      float(offset_xy[0]), float(offset_xy[1]), tol.distance, tol.parallel)
 
 
+@functools.cache
 def _kernel():
     """The compiled loop (:mod:`optimizer.search._contact`), imported on first use: importing
     numba takes 0.6 s, which the verbs that lower no block do not pay."""
