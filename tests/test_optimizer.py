@@ -43,6 +43,34 @@ def tiny():
     return load_scene(TINY)
 
 
+@pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2", "box:1.6x1.6x1.6"])
+def test_the_compiled_column_is_the_polytope_modules_column(block_name):
+    """The drop's compiled loop crosses a piece with one vertical line at a time
+    (``_contact.column``); ``geometry.polytope.column_intervals`` does many at once. On
+    lines through, beside and far from every piece of a turned block (a cube's vertical
+    faces too), the two give the same extent, and both say where a line misses."""
+    from geometry.blocks import get_block
+    from geometry.polytope import column_intervals
+    from optimizer.search._contact import column
+
+    block = get_block(block_name)
+    rng = np.random.default_rng(5)
+    turns = [np.array([1.0, 0.0, 0.0, 0.0]), random_quaternion(rng)]
+    misses = 0
+    for q in turns:
+        for piece in Shape.of(block, q).pieces:
+            xy = rng.uniform(-1.5 * block.bounding_radius, 1.5 * block.bounding_radius, (200, 2))
+            lo, hi = column_intervals(piece.normals, piece.offsets, xy)
+            for (x, y), a, b in zip(xy, lo, hi, strict=True):
+                c_lo, c_hi = column(piece.normals, piece.offsets, float(x), float(y), tol.distance)
+                if a > b:
+                    misses += 1
+                    assert c_lo > c_hi
+                else:
+                    assert (c_lo, c_hi) == (pytest.approx(a, abs=1e-12), pytest.approx(b, abs=1e-12))
+    assert misses > 0, "some lines miss a piece"
+
+
 @pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2"])
 def test_a_drop_by_linear_programme_lands_where_one_by_breakpoints_does(block_name, monkeypatch):
     """Pieces with many planes are lowered by a linear programme (two 2500-vertex spheres took

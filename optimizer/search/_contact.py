@@ -34,9 +34,10 @@ def column(normals, offsets, x, y, eps):  # pragma: no cover - compiled
     eps : float, metres
         Planes whose normal's z is within it are vertical.
 
-    Returns ``(lo, hi)``, with ``lo > hi`` where the line misses (as
-    :func:`geometry.polytope.column_intervals`); NaN where a coordinate is NaN, as numpy
-    gave (a bound is replaced unless the new value is on the kept side of it).
+    Returns ``(lo, hi)``, with ``lo > hi`` where the line misses; NaN where a coordinate is
+    NaN (a bound is replaced unless the new value is on the kept side of it). The same as
+    :func:`geometry.polytope.column_intervals` for one column, which stays the one for many
+    columns at once; a test holds the two together.
     """
     lo, hi = -np.inf, np.inf
     for k in range(normals.shape[0]):

@@ -7,10 +7,12 @@ vertical line through both. That difference is concave over the overlap of
 their footprints (top_Q is concave, bottom_P convex), so its maximum lies on a
 vertex of the arrangement of their projected edges: a projected vertex of
 either piece, or a crossing of a projected edge of each. Evaluating the exact
-vertical extent of both pieces at those points
-(:func:`geometry.polytope.column_intervals`) gives the first-contact height
-exactly, with no stepping. Pairs are visited in order of their best possible
-height and the search stops once no pair can beat the height found.
+vertical extent of both pieces at those points gives the first-contact height
+exactly, with no stepping: :func:`geometry.polytope.column_intervals` point by
+point, in a loop compiled by numba (:mod:`optimizer.search._contact`), since the
+numpy call's cost on a few dozen points was most of a drop's time. Pairs are
+visited in order of their best possible height and the search stops once no
+pair can beat the height found.
 
 The foundation is the plane z = 0, or a rough height field sampled at its
 nodes and at the block's lower vertices.
