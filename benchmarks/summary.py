@@ -307,6 +307,9 @@ def values() -> dict[str, Any]:
     drops = rows("drop_speed")
     if drops:
         v["drop_speed"] = drops
+    grounds = rows("ground_speed")
+    if grounds:
+        v["ground_speed"] = grounds
     cq = rows("collision_query_speed")
     if cq:
         v["query_table"] = table(
@@ -687,6 +690,12 @@ def readme_rows(v: dict[str, Any]) -> list[str]:
             f"| one block lowered until it touches, {r['case']} | {float(r['drop_us']):.0f} µs a drop; "
             f"contact {float(r['pair_us']):.1f} µs compiled, {float(r['pair_numpy_us']):.0f} µs in numpy; "
             f"same supports {r['same_supports']} | | | `drop_speed.csv` |"
+        )
+    for r in v.get("ground_speed", []):
+        out.append(
+            f"| the ground under a block lowered onto rubble, {r['case']} | {float(r['call_us']):.0f} µs "
+            f"compiled, {float(r['call_numpy_us']):.0f} µs in numpy; largest difference "
+            f"{float(r['max_height_diff_m']):.0e} m | | | `ground_speed.csv` |"
         )
     for scene, r in v.get("optimizer_runs", {}).items():
         if scene in ("mini", "full"):

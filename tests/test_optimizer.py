@@ -71,6 +71,52 @@ def test_the_compiled_column_is_the_polytope_modules_column(block_name):
     assert misses > 0, "some lines miss a piece"
 
 
+@pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2", "box:1.6x1.6x1.6"])
+def test_the_compiled_ground_test_is_the_numpy_one_and_leaves_every_vertex_above_the_rubble(block_name):
+    """On rough ground a block is lowered until one of its pieces meets the height field at a
+    vertex of the block or a node of the field under it. The compiled loop
+    (``_contact.ground_kernel``) gives the height that the numpy form, written out here from
+    ``column_intervals`` and ``Foundation.height_at``, gives, for turned blocks anywhere over
+    the field, its edges too; and at that height no vertex of the block is under the ground,
+    nor any node of the field over the block."""
+    from geometry.blocks import get_block
+    from geometry.polytope import column_intervals
+    from geometry.scene import Foundation
+
+    block = get_block(block_name)
+    field = Foundation(kind="rough", amplitude=0.3, cell=0.4, seed=2, extent=(-4.0, 4.0, -3.0, 3.0))
+    world = DropWorld(field)
+    rng = np.random.default_rng(3)
+    xs, ys, _ = field.grid
+    for _ in range(60):
+        shape = Shape.of(block, random_quaternion(rng))
+        x, y = rng.uniform(-4.5, 4.5), rng.uniform(-3.5, 3.5)
+        z = world.ground_height(shape, x, y)
+        offset = np.array([x, y])
+        lo_xy = shape.xy_boxes[:, 0].min(axis=0) + offset
+        hi_xy = shape.xy_boxes[:, 1].max(axis=0) + offset
+        gx, gy = np.meshgrid(xs[(xs >= lo_xy[0]) & (xs <= hi_xy[0])], ys[(ys >= lo_xy[1]) & (ys <= hi_xy[1])],
+                             indexing="ij")
+        local = np.concatenate([shape.vertices_xy, np.column_stack([gx.ravel(), gy.ravel()]) - offset])
+        ground = field.height_at(local + offset)
+        expected = -np.inf
+        for piece in shape.pieces:
+            lo, hi = column_intervals(piece.normals, piece.offsets, local)
+            ok = hi >= lo - tol.distance
+            if ok.any():
+                expected = max(expected, float(np.max(ground[ok] - lo[ok])))
+        assert z == pytest.approx(expected, abs=1e-12)
+        world_vertices = Pose([x, y, z], shape.quaternion).apply(block.vertices)
+        clearance = world_vertices[:, 2] - field.height_at(world_vertices[:, :2])
+        assert clearance.min() >= -1e-9
+        nodes = np.column_stack([gx.ravel(), gy.ravel()])
+        under = [z + lo - field.height_at(nodes)[ok] for piece in shape.pieces
+                 for lo, hi in [column_intervals(piece.normals, piece.offsets, nodes - offset)]
+                 for ok in [hi >= lo - tol.distance] for lo in [lo[ok]]]
+        node_clearance = min((float(c.min()) for c in under if len(c)), default=np.inf)
+        assert node_clearance >= -1e-9
+
+
 @pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2"])
 def test_a_drop_by_linear_programme_lands_where_one_by_breakpoints_does(block_name, monkeypatch):
     """Pieces with many planes are lowered by a linear programme (two 2500-vertex spheres took

@@ -109,3 +109,69 @@ def rest_height_kernel(mn, mo, me, mv, fn, fo, fe, fv, ox, oy, eps, parallel):  
             if 0.0 <= t <= 1.0 and 0.0 <= u <= 1.0:
                 best = height_at(mn, mo, fn, fo, ox, oy, px + t * rx, py + t * ry, eps, best)
     return best
+
+
+@_jit
+def field_height(xs, ys, h, cell, edge, x, y):  # pragma: no cover - compiled
+    """The rough foundation's top at (x, y): :meth:`geometry.scene.Foundation.height_at` for
+    one point (``edge`` is ``tol.grid_edge``)."""
+    fx = min(max((x - xs[0]) / cell, 0.0), len(xs) - 1 - edge)
+    fy = min(max((y - ys[0]) / cell, 0.0), len(ys) - 1 - edge)
+    i, j = int(fx), int(fy)
+    tx, ty = fx - i, fy - j
+    h00, h10, h01, h11 = h[i, j], h[i + 1, j], h[i, j + 1], h[i + 1, j + 1]
+    if tx >= ty:
+        return h00 + tx * (h10 - h00) + ty * (h11 - h10)
+    return h00 + ty * (h01 - h00) + tx * (h11 - h01)
+
+
+@_jit
+def ground_kernel(normals, offsets, starts, vxy, box, xs, ys, h, cell, edge, x, y, eps):  # pragma: no cover
+    """Lowest centroid height at which a shape lowered at (x, y) clears a rough foundation.
+
+    Parameters
+    ----------
+    normals, offsets : (k, 3), (k,) float
+        The planes of every piece, one after another, centroid at the origin; piece ``p``'s
+        are rows ``starts[p]:starts[p + 1]``.
+    vxy : (v, 2) float, metres
+        Every piece's vertices in plan, centroid at the origin.
+    box : (2, 2) float, metres
+        The shape's footprint box, centroid at the origin.
+    xs, ys, h, cell : the foundation's grid (:attr:`geometry.scene.Foundation.grid`).
+    edge, eps : float
+        ``tol.grid_edge`` and ``tol.distance``.
+
+    The ground is sampled where :meth:`optimizer.search.drop.DropWorld.ground_height` samples
+    it, the block's vertices and the grid's nodes under its footprint box; each piece meets it
+    on the columns it crosses. ``-inf`` if no piece crosses any.
+    """
+    best = -np.inf
+    i0 = np.searchsorted(xs, box[0, 0] + x)
+    i1 = np.searchsorted(xs, box[1, 0] + x, side="right")
+    j0 = np.searchsorted(ys, box[0, 1] + y)
+    j1 = np.searchsorted(ys, box[1, 1] + y, side="right")
+    n_v = vxy.shape[0]
+    n = n_v + (i1 - i0) * (j1 - j0)
+    lx = np.empty(n)
+    ly = np.empty(n)
+    g = np.empty(n)
+    for k in range(n_v):
+        lx[k], ly[k] = vxy[k, 0], vxy[k, 1]
+    k = n_v
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            lx[k], ly[k] = xs[i] - x, ys[j] - y
+            k += 1
+    for k in range(n):
+        g[k] = field_height(xs, ys, h, cell, edge, lx[k] + x, ly[k] + y)
+    for p in range(starts.shape[0] - 1):
+        pn = normals[starts[p]:starts[p + 1]]
+        po = offsets[starts[p]:starts[p + 1]]
+        for k in range(n):
+            lo, hi = column(pn, po, lx[k], ly[k], eps)
+            if hi >= lo - eps:
+                v = g[k] - lo
+                if v > best:
+                    best = v
+    return best

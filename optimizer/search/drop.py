@@ -30,7 +30,7 @@ from scipy.optimize import linprog
 
 from geometry.blocks import Block
 from geometry.constants import tol
-from geometry.polytope import ConvexPolytope, column_intervals
+from geometry.polytope import ConvexPolytope
 from geometry.pose import Pose, quat_to_matrix
 from geometry.scene import Foundation
 
@@ -63,6 +63,9 @@ class Shape:
     lower: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
     upper: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
     vertices_xy: np.ndarray = field(repr=False, default=None)  # (v, 2): every piece's vertices, x and y
+    #: Every piece's planes one after another, and where each piece's start (p + 1,): for the
+    #: compiled ground test, which takes one array.
+    planes: tuple[np.ndarray, np.ndarray, np.ndarray] = field(repr=False, default=None)
 
     @classmethod
     def of(cls, block: Block, quaternion: np.ndarray) -> Shape:
@@ -76,7 +79,10 @@ class Shape:
         lower = [_side(s, p, r[2], -1.0) for s, p in zip(sides, pieces, strict=True)]
         upper = [_side(s, p, r[2], 1.0) for s, p in zip(sides, pieces, strict=True)]
         xy = np.concatenate([p.vertices[:, :2] for p in pieces])
-        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, lower, upper, xy)
+        planes = (np.concatenate([p.normals for p in pieces]), np.concatenate([p.offsets for p in pieces]),
+                  np.cumsum([0] + [len(p.normals) for p in pieces]))
+        return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, lower, upper, xy,
+                   planes)
 
 
 @dataclass(frozen=True, eq=False)
@@ -152,6 +158,14 @@ def rest_height(moving: ConvexPolytope, moving_lower: tuple[np.ndarray, np.ndarr
     fe, fvert = fixed_upper
     return _kernel()(moving.normals, moving.offsets, me, mvert, fixed.normals, fixed.offsets, fe, fvert,
                      float(offset_xy[0]), float(offset_xy[1]), tol.distance, tol.parallel)
+
+
+@functools.cache
+def _ground_kernel():
+    """The compiled ground test (:mod:`optimizer.search._contact`), imported on first use."""
+    from ._contact import ground_kernel
+
+    return ground_kernel
 
 
 @functools.cache
@@ -265,28 +279,21 @@ class DropWorld:
         return out
 
     def ground_height(self, shape: Shape, x: float, y: float) -> float:
-        """Lowest centroid height at which the shape clears the foundation."""
+        """Lowest centroid height at which the shape clears the foundation.
+
+        On rough ground, the field is sampled at the block's vertices and at its nodes under
+        the block's footprint box, and each piece meets it where its own column is (a point
+        outside its footprint misses it): a compiled loop
+        (:func:`optimizer.search._contact.ground_kernel`). In numpy this was a fifth of a run
+        on ``mini-rough`` (386 us a call, 2026-11-28); ``benchmarks/drop_speed.py`` measures both.
+        """
         if self.foundation.kind != "rough":
             return float(-shape.lows.min())
-        f = self.foundation
-        xs, ys, _ = f.grid
-        # The field's nodes under the whole block, once: index ranges, not a scan of the grid.
-        offset = np.array([x, y])
-        lo_xy, hi_xy = shape.xy_boxes[:, 0].min(axis=0) + offset, shape.xy_boxes[:, 1].max(axis=0) + offset
-        i0, i1 = np.searchsorted(xs, lo_xy[0]), np.searchsorted(xs, hi_xy[0], side="right")
-        j0, j1 = np.searchsorted(ys, lo_xy[1]), np.searchsorted(ys, hi_xy[1], side="right")
-        gx, gy = np.meshgrid(xs[i0:i1], ys[j0:j1], indexing="ij")
-        # The height field at every piece's vertices and at the nodes under the block, in one call;
-        # each piece then meets it where its own column is (a point outside its footprint misses it).
-        local = np.concatenate([shape.vertices_xy, np.column_stack([gx.ravel(), gy.ravel()]) - offset])
-        ground = f.height_at(local + offset)
-        best = -np.inf
-        for p in shape.pieces:
-            lo, hi = column_intervals(p.normals, p.offsets, local)
-            ok = hi >= lo - tol.distance
-            if ok.any():
-                best = max(best, float(np.max(ground[ok] - lo[ok])))
-        return best
+        xs, ys, h = self.foundation.grid
+        normals, offsets, starts = shape.planes
+        box = np.array([shape.xy_boxes[:, 0].min(axis=0), shape.xy_boxes[:, 1].max(axis=0)])
+        return _ground_kernel()(normals, offsets, starts, shape.vertices_xy, box, xs, ys, h,
+                                float(self.foundation.cell), tol.grid_edge, float(x), float(y), tol.distance)
 
     def drop(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset(),
              ground: float | None = None) -> tuple[float, list[int], bool]:
