@@ -7,7 +7,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from geometry.pose import Pose, axis_angle_quat, matrix_to_quat, quat_multiply, quat_to_matrix
+from geometry.pose import (
+    Pose,
+    axis_angle_quat,
+    matrix_to_quat,
+    quat_multiply,
+    quat_to_matrix,
+    rotation_between,
+)
 
 unit = st.lists(st.floats(-1, 1), min_size=4, max_size=4).filter(lambda v: np.linalg.norm(v) > 0.1)
 
@@ -35,6 +42,21 @@ def test_compose_is_matrix_product(a, b):
     np.testing.assert_allclose(pa.compose(pb).matrix, pa.matrix @ pb.matrix, atol=1e-12)
     np.testing.assert_allclose(quat_to_matrix(quat_multiply(qa, qb)), quat_to_matrix(qa) @ quat_to_matrix(qb),
                                atol=1e-12)
+
+
+@settings(max_examples=200)
+@given(unit, unit, st.floats(-12, 0))
+def test_rotation_between_is_scipys_angle_small_ones_too(a, b, small):
+    """The settle's rotation figure is scipy's ``magnitude`` of ``q1 * q0^-1``, in plain
+    floats: for any pair, for a pair a hair apart (where ``arccos`` would lose half the
+    digits), and for a quaternion against its own negative (the same orientation)."""
+    qa, qb = np.array(a) / np.linalg.norm(a), np.array(b) / np.linalg.norm(b)
+    near = qa + 10.0 ** small * qb
+    near /= np.linalg.norm(near)
+    for q0, q1 in [(qa, qb), (qa, near), (qa, -qa)]:
+        expected = (Rotation.from_quat(q1, scalar_first=True)
+                    * Rotation.from_quat(q0, scalar_first=True).inv()).magnitude()
+        assert abs(rotation_between(q0, q1) - expected) <= 1e-14 + 1e-12 * expected
 
 
 def test_apply_and_inverse():
