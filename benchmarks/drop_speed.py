@@ -14,7 +14,9 @@ on arrays of a few dozen rows; it is now a loop compiled by numba
 * microseconds per ``rest_height`` call, the compiled one against the numpy
   one below (the code that was replaced, kept here as the reference);
 * the largest difference between their heights over every pair, and whether
-  every drop lands on the same blocks with either.
+  every drop lands on the same blocks with either;
+* microseconds to turn the block to a new orientation (``Shape.of``), which the
+  search does for every new yaw.
 
 The first compiled call (numba's compile, or its load from the disk cache) is
 timed on its own.
@@ -84,6 +86,11 @@ def case(name: str, placed: list, rng: np.random.Generator) -> dict:
     world = DropWorld.of(Foundation(), placed)
     xy = np.array([pose.position[:2] for _, _, pose in placed])
     lo, hi = xy.min(axis=0), xy.max(axis=0)
+    turns = [random_quaternion(rng) for _ in range(DROPS)]
+    t0 = time.perf_counter()
+    for q in turns:
+        Shape.of(block, q)
+    per_shape = (time.perf_counter() - t0) / len(turns)
     shapes = [Shape.of(block, random_quaternion(rng)) for _ in range(16)]
     drops = [(shapes[int(rng.integers(len(shapes)))], *rng.uniform(lo, hi)) for _ in range(DROPS)]
 
@@ -120,7 +127,7 @@ def case(name: str, placed: list, rng: np.random.Generator) -> dict:
     finite = [(a, b) for a, b in zip(fast, slow, strict=True) if np.isfinite(a) or np.isfinite(b)]
     return {
         "case": name, "blocks": len(placed), "drops": len(drops), "pairs": len(pairs),
-        "drop_us": round(per_drop * 1e6, 1),
+        "drop_us": round(per_drop * 1e6, 1), "shape_us": round(per_shape * 1e6, 1),
         "pair_us": round(per_pair * 1e6, 2), "pair_numpy_us": round(per_pair_numpy * 1e6, 2),
         "speedup": round(per_pair_numpy / per_pair, 1),
         "max_height_diff_m": max((abs(a - b) for a, b in finite), default=0.0),
@@ -208,7 +215,7 @@ def main() -> None:
         print(f"{r['case']}: {r['drop_us']} us a drop; rest_height {r['pair_us']} us compiled, "
               f"{r['pair_numpy_us']} us numpy ({r['speedup']}x), largest height difference "
               f"{r['max_height_diff_m']:.1e} m, same supports {r['same_supports']}; first call "
-              f"{r['first_call_s']} s")
+              f"{r['first_call_s']} s; a new orientation {r['shape_us']} us")
     run.csv("drop_speed", rows)
     grounds = [ground_case(name, rng) for name in ("mini-rough", "tetrapod-big")]
     for r in grounds:

@@ -72,6 +72,39 @@ def test_the_compiled_column_is_the_polytope_modules_column(block_name):
 
 
 @pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2", "box:1.6x1.6x1.6"])
+def test_a_turned_shape_is_each_piece_turned_with_its_faces_that_look_down_and_up(block_name):
+    """``Shape.of`` turns all pieces in one pass: each piece is the block's piece turned
+    (``ConvexPolytope.transformed``), with its lowest and highest z and footprint box, and its
+    lower (upper) side holds the vertices and edges of exactly the triangles whose turned
+    normal points down (up)."""
+    from geometry.blocks import get_block
+    from geometry.pose import quat_to_matrix
+
+    block = get_block(block_name)
+    rng = np.random.default_rng(8)
+    for q in [np.array([1.0, 0.0, 0.0, 0.0]), *[random_quaternion(rng) for _ in range(6)]]:
+        shape = Shape.of(block, q)
+        r = quat_to_matrix(q)
+        assert len(shape.pieces) == len(block.pieces)
+        for i, own in enumerate(block.pieces):
+            turned = own.transformed(r, np.zeros(3))
+            piece = shape.pieces[i]
+            np.testing.assert_array_equal(piece.vertices, turned.vertices)
+            np.testing.assert_array_equal(piece.normals, turned.normals)
+            np.testing.assert_array_equal(piece.offsets, turned.offsets)
+            assert shape.lows[i] == turned.vertices[:, 2].min() and shape.highs[i] == turned.vertices[:, 2].max()
+            np.testing.assert_array_equal(shape.xy_boxes[i], turned.aabb[:, :2])
+            tri = turned.vertices[own.faces]
+            n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            for side, sign in ((shape.lower[i], -1.0), (shape.upper[i], 1.0)):
+                facing = sign * n[:, 2] > tol.orientation * np.linalg.norm(n, axis=1)
+                corners = {tuple(v) for v in turned.vertices[np.unique(own.faces[facing])]}
+                edges, vertices = side
+                assert {tuple(v) for v in vertices} == corners and len(vertices) == len(corners)
+                assert {tuple(v) for v in edges.reshape(-1, 3)} == corners
+
+
+@pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2", "box:1.6x1.6x1.6"])
 def test_the_compiled_ground_test_is_the_numpy_one_and_leaves_every_vertex_above_the_rubble(block_name):
     """On rough ground a block is lowered until one of its pieces meets the height field at a
     vertex of the block or a node of the field under it. The compiled loop
