@@ -12,8 +12,10 @@ $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 
+# The search's compiled loops are compiled and cached once here, not in a first run's time limit.
 $(VENV)/.installed: pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e .
+	$(BIN)/python -m optimizer.search._contact
 	touch $@
 
 $(VENV)/.installed-test: pyproject.toml $(VENV)/.installed

@@ -18,6 +18,7 @@ from geometry.scene import load_scene
 from optimizer.api import _attempt, optimize
 from optimizer.search.anneal import Annealing, energy_of
 from optimizer.search.beam import BeamSearch
+from optimizer.search.build import Build
 from optimizer.search.cpsat import CpSat
 from optimizer.search.drop import DropWorld, Shape
 from optimizer.search.hangings import BASE, FAMILIES, hanging
@@ -92,7 +93,8 @@ def test_a_turned_shape_is_each_piece_turned_with_its_faces_that_look_down_and_u
             np.testing.assert_array_equal(piece.vertices, turned.vertices)
             np.testing.assert_array_equal(piece.normals, turned.normals)
             np.testing.assert_array_equal(piece.offsets, turned.offsets)
-            assert shape.lows[i] == turned.vertices[:, 2].min() and shape.highs[i] == turned.vertices[:, 2].max()
+            z = turned.vertices[:, 2]
+            assert shape.lows[i] == z.min() and shape.highs[i] == z.max()
             np.testing.assert_array_equal(shape.xy_boxes[i], turned.aabb[:, :2])
             tri = turned.vertices[own.faces]
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -148,6 +150,30 @@ def test_the_compiled_ground_test_is_the_numpy_one_and_leaves_every_vertex_above
                  for ok in [hi >= lo - tol.distance] for lo in [lo[ok]]]
         node_clearance = min((float(c.min()) for c in under if len(c)), default=np.inf)
         assert node_clearance >= -1e-9
+
+
+def test_the_warm_up_compiles_the_loops_for_the_types_a_search_passes():
+    """``make`` compiles the drop's loops once (``python -m optimizer.search._contact``), so that
+    a first run does not spend its time limit compiling. That helps only if a search then calls
+    them with the very types the warm-up compiled: after the warm-up and a few drops on rubble
+    among blocks, every loop has one compiled signature."""
+    from optimizer.search import _contact
+
+    _contact.warm()
+    scene = load_scene(ROOT / "benchmarks" / "scenes" / "mini-rough.toml")
+    build = Build(scene)
+    rng = np.random.default_rng(4)
+    placed = 0
+    for _ in range(40):
+        shape = Shape.of(scene.block, random_quaternion(rng))
+        c = build.lower(shape, float(rng.uniform(-3, 3)), float(rng.uniform(2, 10)))
+        if c is not None:
+            build.place(c)
+            placed += 1
+    assert placed >= 3 and any(s != -1 for k in build.order for s in build.supports[k]), "drops onto blocks"
+    # The two a search calls; the others are compiled into them.
+    for name in ("rest_height_kernel", "ground_kernel"):
+        assert len(getattr(_contact, name).signatures) == 1, name
 
 
 @pytest.mark.parametrize("block_name", ["shake-4t", "tetrapod:2"])
