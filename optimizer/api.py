@@ -71,6 +71,8 @@ from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
 from .search.physics import confirm, judged, raised_check, settling_by, stands, verdict
 from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
+from .search.shapes import ShapeCache
+from .search.sites import spread_to_count
 from .search.toe import ToeRows
 from .search.trim import over, trim_moves
 
@@ -173,6 +175,8 @@ REFILL_SETTLES = 2.0
 #: Share of the time limit, and most seconds, that tuning a new block's pattern may take.
 TUNE_SHARE = 0.25
 TUNE_MAX_SECONDS = 60.0
+#: The share of the limit that choosing how far to spread the pattern may take (``spread_to_count``).
+SPREAD_SHARE = 0.05
 
 
 @dataclass
@@ -446,6 +450,7 @@ def optimize(
     check_keep(scene, keep)
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     rng = np.random.default_rng(seed)
+    spread = lattice is None and not keep  # a pattern given is laid as given; kept blocks set their own
     if lattice is None:
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
         lattice = lattice_for(scene.block, scene.block_type, min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS),
@@ -467,6 +472,15 @@ def optimize(
         meter=SettleMeter(earliest=start + (1.0 - RESERVE_SHARE) * time_limit),
     )
     strategies_run = list(strategies) if strategies is not None else default_strategies(bound)
+    spread_phase = None
+    if spread and any(isinstance(s, BeamSearch) for s in strategies_run):
+        # A pattern denser than the target fills a tall mound's count with its top empty: spread.
+        t0 = clock()
+        factor, held = spread_to_count(problem, ShapeCache(scene.block), start + SPREAD_SHARE * time_limit)
+        if factor != 1.0:
+            problem = replace(problem, lattice=problem.lattice.scaled(factor))
+        spread_phase = {"strategy": "spread", "seconds": clock() - t0, "factor": factor, "holds": held,
+                        "blocks": 0, "porosity_percent": 100.0}
 
     def end_for(blocks: int) -> float:
         """When the confirming settles must end, for a layout of ``blocks``: what its final
@@ -504,7 +518,7 @@ def optimize(
         cover_note = f"{cover_note}; {moved}" if cover_note else moved
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     tried[chosen] = best
-    phases = [p for t in tried for p in t.phases]
+    phases = ([spread_phase] if spread_phase else []) + [p for t in tried for p in t.phases]
     if len(tried) > 1:
         own = [t.unmoved or t for t in tried]
         phases.append({"strategy": "attempts", "attempts": len(tried), "chosen": chosen + 1,
