@@ -476,11 +476,12 @@ def optimize(
     if spread and any(isinstance(s, BeamSearch) for s in strategies_run):
         # A pattern denser than the target fills a tall mound's count with its top empty: spread.
         t0 = clock()
-        factor, held = spread_to_count(problem, ShapeCache(scene.block), start + SPREAD_SHARE * time_limit)
+        factor, held = spread_to_count(problem, ShapeCache(scene.block),
+                                       min(t0 + SPREAD_SHARE * time_limit, problem.deadline))
         if factor != 1.0:
             problem = replace(problem, lattice=problem.lattice.scaled(factor))
-        spread_phase = {"strategy": "spread", "seconds": clock() - t0, "factor": factor, "holds": held,
-                        "blocks": 0, "porosity_percent": 100.0}
+        spread_phase = {"strategy": "spread", "attempt": 1, "seconds": clock() - t0, "factor": factor,
+                        "holds": held, "blocks": 0, "porosity_percent": 100.0}
 
     def end_for(blocks: int) -> float:
         """When the confirming settles must end, for a layout of ``blocks``: what its final

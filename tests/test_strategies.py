@@ -394,3 +394,32 @@ def scene_families(scene):
     from optimizer.search.hangings import families
 
     return families(scene.block)
+
+
+def test_the_pattern_is_spread_as_far_as_it_still_holds_the_margin_over_the_count(tiny):
+    """``spread_to_count`` picks the largest spread whose quick pass still holds
+    ``SPREAD_MARGIN`` over the count: a count far under what the pattern holds (a high target
+    porosity) spreads it, the next spread tried then holding less than that; a count the
+    pattern barely holds (the scene's own) leaves it as it is."""
+    from dataclasses import replace as with_
+
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+
+    shapes = ShapeCache(tiny.block)
+    own = problem(tiny)
+    factor, held = sites.spread_to_count(own, shapes, own.now() + 60)
+    full = sites.pattern_pass(with_(own, required=10_000), shapes, Build(tiny), (0.0, 0.0))
+    assert factor == 1.0 and held >= len(full) and held < own.required * (1 + sites.SPREAD_MARGIN)
+    few = with_(own, required=int(held / 1.6))
+    factor, held = sites.spread_to_count(few, shapes, few.now() + 60)
+    need = few.required * (1 + sites.SPREAD_MARGIN)
+    assert factor > 1.0 and held >= need
+    wider = [f for f in sites.SPREADS if f > factor]
+    if wider:
+        p = with_(few, lattice=few.lattice.scaled(wider[0]), required=10_000)
+        most = max(len(sites.pattern_pass(p, shapes, Build(tiny), (u * p.lattice.w, v * p.lattice.p)))
+                   for u, v in [(0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25)])
+        assert most < need
+    # Stopped at once, it does not spread.
+    assert sites.spread_to_count(few, shapes, few.now() - 1.0)[0] == 1.0

@@ -260,7 +260,7 @@ SPREADS = (1.02, 1.04, 1.06, 1.08, 1.10, 1.15, 1.20, 1.25, 1.30)
 SPREAD_ORIGINS = 4
 
 
-def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[float, int]:
+def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[float, int | None]:
     """How far to spread the pattern in plan so that the count fills the mound to its top.
 
     The patterns are denser than the target porosity asks, so on a tall mound the count is
@@ -270,7 +270,7 @@ def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[
     chosen (its quick pass, :func:`pattern_pass`, with no count to stop it, from
     ``SPREAD_ORIGINS`` origins); 1.0 where the unspread one holds no more than that, or where
     ``stop`` (``problem.now()``) comes first. Returns the factor and what the pattern so spread
-    holds (the unspread one's where the factor is 1.0).
+    holds (the unspread one's where the factor is 1.0; None where not even it was measured).
     """
     need = problem.required * (1.0 + SPREAD_MARGIN)
     empty = Build(problem.scene)
@@ -291,7 +291,7 @@ def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[
 
     base = holds(1.0)
     if base is None or base < need:
-        return 1.0, base or 0
+        return 1.0, base
     chosen, held = 1.0, base
     for factor in SPREADS:
         n = holds(factor)
