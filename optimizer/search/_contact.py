@@ -144,8 +144,11 @@ def ground_kernel(normals, offsets, starts, vxy, box, xs, ys, h, cell, edge, x, 
 
     The ground is sampled where :meth:`optimizer.search.drop.DropWorld.ground_height` samples
     it, the block's vertices and the grid's nodes under its footprint box; each piece meets it
-    on the columns it crosses. ``-inf`` if no piece crosses any.
+    on the columns it crosses. ``-inf`` if no piece crosses any; NaN where (x, y) is not finite
+    (the grid is not indexed by it: numba does not check bounds).
     """
+    if not (np.isfinite(x) and np.isfinite(y)):
+        return np.nan
     best = -np.inf
     i0 = np.searchsorted(xs, box[0, 0] + x)
     i1 = np.searchsorted(xs, box[1, 0] + x, side="right")
