@@ -396,30 +396,36 @@ def scene_families(scene):
     return families(scene.block)
 
 
-def test_the_pattern_is_spread_as_far_as_it_still_holds_the_margin_over_the_count(tiny):
-    """``spread_to_count`` picks the largest spread whose quick pass still holds
-    ``SPREAD_MARGIN`` over the count: a count far under what the pattern holds (a high target
-    porosity) spreads it, the next spread tried then holding less than that; a count the
-    pattern barely holds (the scene's own) leaves it as it is."""
+def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_margin_over_the_count(
+        tiny, tmp_path):
+    """``spread_to_count`` spreads the pattern only where the count, laid as the pattern is,
+    leaves over 5 % of the crest bare (a mound taller than two layers: big-shake's section, 12 m
+    long), and
+    then picks the largest spread whose quick pass still holds ``SPREAD_MARGIN`` over the
+    count, the next one tried holding less. On ``tiny`` (a slice of ``mini``) the count covers
+    the crest, and nothing is spread; nor where its time is up."""
     from dataclasses import replace as with_
 
     from optimizer.search import sites
     from optimizer.search.shapes import ShapeCache
 
-    shapes = ShapeCache(tiny.block)
-    own = problem(tiny)
-    factor, held = sites.spread_to_count(own, shapes, own.now() + 60)
-    full = sites.pattern_pass(with_(own, required=10_000), shapes, Build(tiny), (0.0, 0.0))
-    assert factor == 1.0 and held >= len(full) and held < own.required * (1 + sites.SPREAD_MARGIN)
-    few = with_(own, required=int(held / 1.6))
-    factor, held = sites.spread_to_count(few, shapes, few.now() + 60)
-    need = few.required * (1 + sites.SPREAD_MARGIN)
+    path = tmp_path / "tall.toml"
+    path.write_text('name = "tall"\nblock = "shake-4t"\ntarget_porosity_percent = 56.0\n[design]\n'
+                    'crest_width_m = 5.0\nheight_m = 4.5\nslope_rise_run = [2.0, 3.0]\nlength_m = 12.0\n')
+    tall = load_scene(path)
+    shapes = ShapeCache(tall.block)
+    p = problem(tall)
+    counted = sites.pattern_pass(p, shapes, Build(tall), (0.0, 0.0))
+    assert p.coverage(counted.placed()).by_face()["crest"] > 5.0, "the count leaves the crest bare"
+    factor, held = sites.spread_to_count(p, shapes, p.now() + 120)
+    need = p.required * (1 + sites.SPREAD_MARGIN)
     assert factor > 1.0 and held >= need
     wider = [f for f in sites.SPREADS if f > factor]
     if wider:
-        p = with_(few, lattice=few.lattice.scaled(wider[0]), required=10_000)
-        most = max(len(sites.pattern_pass(p, shapes, Build(tiny), (u * p.lattice.w, v * p.lattice.p)))
+        q = with_(p, lattice=p.lattice.scaled(wider[0]), required=10_000)
+        most = max(len(sites.pattern_pass(q, shapes, Build(tall), (u * q.lattice.w, v * q.lattice.p)))
                    for u, v in [(0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25)])
         assert most < need
-    # Stopped at once, it does not spread.
-    assert sites.spread_to_count(few, shapes, few.now() - 1.0)[0] == 1.0
+    assert sites.spread_to_count(p, shapes, p.now() - 1.0) == (1.0, None)
+    own = problem(tiny)
+    assert sites.spread_to_count(own, ShapeCache(tiny.block), own.now() + 60) == (1.0, None)
