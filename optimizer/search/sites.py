@@ -284,7 +284,7 @@ def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[
     # holds 87 of 75 and covers the crest, and a spread of 1.02 only moved the search's origins).
     counted = pattern_pass(problem, shapes, empty, (0.0, 0.0), stop)
     report = problem.coverage(counted.placed()) if problem.now() <= stop else None
-    if report is None or report.by_face()["crest"] <= AIM_BARE_PERCENT:
+    if report is None or report.by_face().get("crest", 0.0) <= AIM_BARE_PERCENT:  # none: no crest
         return 1.0, None
     unbounded = replace(problem, required=10 * problem.required + 100)
     # Fixed shares of a cell, not drawn: the run's random stream is the same with or without it.
