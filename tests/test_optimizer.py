@@ -689,9 +689,10 @@ def test_optimize_result_is_valid_on_tiny(tiny):
     assert r.stable is True
     assert r.blocks >= 0.8 * tiny.required_blocks
     names = [p["strategy"] for p in r.phases]
-    assert names[:4] == ["beam", "fill", "anneal", "cpsat"]
+    # First whether to spread the pattern: not on a slice whose count covers its crest.
+    assert names[:5] == ["spread", "beam", "fill", "anneal", "cpsat"] and r.phases[0]["factor"] == 1.0
     if r.blocks == tiny.required_blocks:  # reached at the first attempt: no other
-        assert set(names[4:]) <= {"refill"} and {p["attempt"] for p in r.phases} == {1}
+        assert set(names[5:]) <= {"refill"} and {p["attempt"] for p in r.phases} == {1}
     assert r.gap["seconds"] > 0.0  # the bound's cost is reported
     if r.blocks < tiny.required_blocks:
         assert r.summary().startswith(f"{tiny.required_blocks} required, {r.blocks} fit: porosity ")
