@@ -87,6 +87,8 @@ def test_a_turned_shape_is_each_piece_turned_with_its_faces_that_look_down_and_u
         shape = Shape.of(block, q)
         r = quat_to_matrix(q)
         assert len(shape.pieces) == len(block.pieces)
+        world = np.concatenate([own.transformed(r, np.zeros(3)).vertices for own in block.pieces])
+        np.testing.assert_array_equal(shape.footprint, [world[:, :2].min(axis=0), world[:, :2].max(axis=0)])
         for i, own in enumerate(block.pieces):
             turned = own.transformed(r, np.zeros(3))
             piece = shape.pieces[i]

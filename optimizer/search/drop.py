@@ -63,9 +63,10 @@ class Shape:
     lower: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
     upper: list[tuple[np.ndarray, np.ndarray]] = field(repr=False)
     vertices_xy: np.ndarray = field(repr=False, default=None)  # (v, 2): every piece's vertices, x and y
-    #: Every piece's planes one after another, and where each piece's start (p + 1,): for the
-    #: compiled ground test, which takes one array.
+    #: Every piece's planes one after another, and where each piece's begin (p + 1,); and the
+    #: whole block's footprint box (2, 2): for the compiled ground test, which takes one array.
     planes: tuple[np.ndarray, np.ndarray, np.ndarray] = field(repr=False, default=None)
+    footprint: np.ndarray = field(repr=False, default=None)
 
     @classmethod
     def of(cls, block: Block, quaternion: np.ndarray) -> Shape:
@@ -91,8 +92,9 @@ class Shape:
         lower = f.sides(turned, -along > tol.orientation * f.lengths)
         upper = f.sides(turned, along > tol.orientation * f.lengths)
         planes = (normals, f.plane_offsets, f.plane_starts)
+        footprint = np.stack([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
         return cls(block, np.asarray(quaternion, float), pieces, lows, highs, boxes, radius, lower, upper, xy,
-                   planes)
+                   planes, footprint)
 
 
 @dataclass(frozen=True, eq=False)
@@ -338,8 +340,7 @@ class DropWorld:
             return float(-shape.lows.min())
         xs, ys, h = self.foundation.grid
         normals, offsets, starts = shape.planes
-        box = np.array([shape.xy_boxes[:, 0].min(axis=0), shape.xy_boxes[:, 1].max(axis=0)])
-        return _ground_kernel()(normals, offsets, starts, shape.vertices_xy, box, xs, ys, h,
+        return _ground_kernel()(normals, offsets, starts, shape.vertices_xy, shape.footprint, xs, ys, h,
                                 float(self.foundation.cell), tol.grid_edge, float(x), float(y), tol.distance)
 
     def drop(self, shape: Shape, x: float, y: float, exclude: frozenset[int] = frozenset(),
