@@ -489,15 +489,22 @@ def test_annealing_fills_a_short_layout(tiny):
     The last three blocks placed go, not the first: a crown of the first row,
     lowered again at its own place, catches on the level blocks dropped
     after it and ends out of the zone, so no crane can put it back.
+
+    A random search: over four streams, one at least must add a block (on one 2-core machine
+    streams 1 and 3 did, on another stream 0; last-bit differences between CPUs change the
+    drops' outcomes), and each that does lowers the energy.
     """
     pr = problem(tiny)
     start = BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1))
     short = start.build.copy()
     for k in short.order[-3:]:
         short.remove(k)
-    out = Annealing(iterations=300).run(pr, Phase(short, origin=start.origin), np.random.default_rng(0)).build
-    assert len(out) > len(short)
-    assert energy_of(pr, out) < energy_of(pr, short)
+    anneal = Annealing(iterations=300)
+    outs = [anneal.run(pr, Phase(short, origin=start.origin), np.random.default_rng(s)).build
+            for s in range(4)]
+    grown = [out for out in outs if len(out) > len(short)]
+    assert grown
+    assert all(energy_of(pr, out) < energy_of(pr, short) for out in grown)
 
 
 def test_cpsat_returns_the_known_optimum_on_a_tiny_candidate_set(tiny):

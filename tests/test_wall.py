@@ -59,6 +59,34 @@ def test_a_block_through_the_wall_is_out_of_tolerance(walled, shake):
     assert [k for k, _ in out] == [1]
 
 
+def test_a_block_settled_a_hair_into_the_wall_is_set_back_inside(walled, shake):
+    """``physics.within``: a block a settle left pressed into the wall face by less than the
+    contact tolerance (the engine's soft contact) is moved back out of it, and is then inside
+    the zone; one through it by more stays where it is, out."""
+    from geometry.constants import tol
+    from geometry.pose import Pose
+    from optimizer.search.physics import within
+
+    zone = walled.tolerance.polytope
+
+    def against(depth: float) -> Pose:
+        pose = standing(shake, 0.0, 7.0)
+        face = pose.apply(shake.vertices)[:, 0].min()
+        return Pose(pose.position - [face + 1.5 + depth, 0.0, 0.0], pose.quaternion)
+
+    pressed = against(1.5e-4)
+    assert [k for k, _ in out_of_tolerance([(0, shake, pressed)], walled.tolerance)] == [0]
+    moved = within(zone, shake, pressed)
+    assert out_of_tolerance([(0, shake, moved)], walled.tolerance) == []
+    shift = moved.position - pressed.position
+    assert shift[0] == pytest.approx(1.5e-4, abs=1e-5) and shift[1:] == pytest.approx([0.0, 0.0])
+    np.testing.assert_array_equal(moved.quaternion, pressed.quaternion)
+    through = against(2 * tol.contact_depth)
+    assert within(zone, shake, through) is through
+    inside = standing(shake, 0.0, 7.0)
+    assert within(zone, shake, inside) is inside
+
+
 def test_wall_must_be_a_boolean():
     with pytest.raises(InputError, match="wall must be true or false"):
         parse_scene(WALL_TOML.format(wall='"yes"'), "bad.toml", None)

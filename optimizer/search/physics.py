@@ -23,9 +23,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from geometry.blocks import Block
 from geometry.clip import volume_inside
 from geometry.collision import collisions
 from geometry.constants import tol
+from geometry.polytope import ConvexPolytope
+from geometry.pose import Pose
 from settle import SettleResult, Stopped, Thresholds, settle
 
 from .beam import BeamSearch
@@ -48,6 +51,8 @@ VERDICT_SEED = 0
 #: Seconds past its end a confirmation's settle may run before it is stopped: the final checks
 #: have their own reserve after the end, and the time limit 2 s of grace.
 SETTLE_GRACE = 1.0
+#: How far (m) past the zone's face a block is set back inside it by :func:`within`.
+NUDGE_SLACK = 1e-6
 
 
 def raised_check(problem: Problem, build: Build, candidate: Candidate) -> Candidate | None:
@@ -244,20 +249,46 @@ def settled_layout(problem: Problem, build: Build, result: SettleResult, rng: np
     """The build where a settle left it, less the blocks that ended invalid; and its own settle.
 
     Kept blocks are held where they are (a settle that moved them is run again
-    with them fixed). A block that ended out of the tolerance zone, or
-    pressed into a neighbour deeper than the contact tolerance, is taken out
-    with what rests on it.
+    with them fixed). A block the settle left pressed into the zone's face by
+    no more than the contact tolerance is set back inside it (:func:`within`).
+    A block that ended out of the tolerance zone, or pressed into a neighbour
+    deeper than the contact tolerance, is taken out with what rests on it.
     """
     free = [k for k in build.order if k not in build.kept]
     if build.kept:
         result = whole_settle(problem, build.placed(), seed=int(rng.integers(2**31)), movable=free)
-    after = build.settled(result.poses)
+    poses = {k: within(build.zone, build.block, pose) if k not in build.kept else pose
+             for k, pose in result.poses.items()}
+    after = build.settled(poses)
     bad = {k for k in after.order if k not in after.kept
            and not after.zone.contains(after.poses[k].apply(after.block.vertices)).all()}
     bad |= {k for c in collisions(after.placed()) for k in (c.a, c.b) if k not in after.kept}
     for k in sorted(carried_closure(after, bad) - set(after.kept), key=after.order.index, reverse=True):
         after.remove(k)
     return after, verdict(problem, after.placed(), rng, movable=judged(after))
+
+
+def within(zone: ConvexPolytope, block: Block, pose: Pose) -> Pose:
+    """``pose`` moved back inside ``zone`` where a settle left the block out of it by no more than
+    the contact tolerance (``tol.contact_depth``); else as it is.
+
+    A block settled against a wall, or onto the zone's face, presses into it as into any body
+    the engine's soft contacts hold it against (0.02-0.15 mm on ``tetra-wall-steep``): out of
+    the zone by that much, it was taken out with every block resting on it. Each face it is
+    out of pushes it back along the face's inward normal, twice over for a corner; if it is
+    still out then, it is left where it was.
+    """
+    moved = pose
+    for _ in range(2):
+        worst = (moved.apply(block.vertices) @ zone.normals.T - zone.offsets).max(axis=0)
+        out = worst > tol.distance  # as ``ConvexPolytope.contains`` has it
+        if not out.any():
+            return moved
+        if worst.max() > tol.contact_depth:
+            break
+        shift = -(zone.normals[out] * (worst[out] + NUDGE_SLACK)[:, None]).sum(axis=0)
+        moved = Pose(moved.position + shift, moved.quaternion)
+    return pose
 
 
 def _repaired(problem: Problem, build: Build, origin: tuple[float, float] | None, deadline: float,
