@@ -215,3 +215,38 @@ def test_behind_a_wall_the_toe_row_is_laid_seaward_and_brings_the_toe_within_h(w
     near = np.min([distance_to_block(samples.points[toe], block, pose) for _, block, pose in walled_rows],
                   axis=0)
     assert near.max() <= AIM_MAX_BARE_H * walled.block.height, near.max()
+
+
+def test_a_block_let_go_that_comes_to_rest_against_the_wall_is_kept():
+    """``physics.settle_in``: a slab lowered upright beside the wall, tipped towards it, falls
+    onto the wall face and rests there, pressed into it by the engine's soft contact. It is
+    kept where it rests, set back out of the wall (``physics.within``), not refused as out of
+    the zone."""
+    from geometry.checks import check_layout
+    from geometry.clip import volume_inside
+    from geometry.pose import Pose, axis_angle_quat
+    from optimizer.search.build import GROUND, Build, Candidate
+    from optimizer.search.drop import Shape
+    from optimizer.search.patterns import staggered
+    from optimizer.search.physics import settle_in
+    from optimizer.search.problem import Problem
+
+    scene = parse_scene(WALL_TOML.format(wall="true").replace('"shake-4t"', '"box:0.3x2x2"'), "slab.toml",
+                        None)
+    slab = scene.block
+    q = axis_angle_quat([0.0, 1.0, 0.0], -np.radians(10.0))  # tipped towards the wall (-x)
+    pose = Pose([0.0, 7.0, 0.0], q)
+    w = pose.apply(slab.vertices)
+    pose = Pose([-1.5 - w[:, 0].min() + 0.3, 7.0, -w[:, 2].min()], q)
+    problem = Problem(scene, scene.required_blocks, scene.target_porosity, staggered(slab))
+    build = Build(scene)
+    candidate = Candidate(Shape.of(slab, q), pose, (GROUND,),
+                          volume_inside(slab, pose, scene.design.polytope))
+    rested = settle_in(problem, build, candidate)
+    assert rested is not None and rested is not candidate
+    tilt = np.degrees(np.arccos(np.clip(rested.pose.rotation[2, 2], -1.0, 1.0)))
+    assert tilt > 5.0  # it fell onto the wall
+    x = rested.pose.apply(slab.vertices)[:, 0].min()
+    assert -1.5 <= x < -1.5 + 0.01  # against the face, not through it
+    report = check_layout(scene, [(0, slab, rested.pose)], with_coverage=False)
+    assert not report.out_of_tolerance

@@ -82,7 +82,8 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
     of where it was lowered (and is not ``loose``: where it was lowered is
     out of the zone); otherwise the block at rest where it ends, if it
     comes to rest within :data:`LOCAL_SECONDS`, whole inside the tolerance
-    zone, pressing no block deeper than ``tol.contact_depth``, and resting on
+    zone (set back inside where it rests a hair into a wall: :func:`within`),
+    pressing no block deeper than ``tol.contact_depth``, and resting on
     something; otherwise None.
     """
     key = -2  # not a key any build uses
@@ -96,7 +97,7 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
         return None if candidate.loose else candidate
     if not result.at_rest:
         return None
-    pose = result.poses[key]
+    pose = within(build.zone, block, result.poses[key])
     world = pose.apply(block.vertices)
     if not build.zone.contains(world).all():
         return None
