@@ -10,7 +10,6 @@ kept (on a clock that advances with the work done: tests/clock.py).
 
 from __future__ import annotations
 
-import math
 import time
 
 import fcl
@@ -460,16 +459,5 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
                    for u, v in [(0.0, 0.0), (0.5, 0.5), (0.25, 0.75), (0.75, 0.25)])
         assert most < need
     assert sites.spread_to_count(p, shapes, p.now() - 1.0) == (1.0, None)
-    # A spread is laid only until it holds the margin, and from no more origins than it takes to
-    # hold it; only one that fails is laid from all four (all in full, the choice overran its
-    # share of the limit).
-    laid = []
-    real = sites.pattern_pass
-    with pytest.MonkeyPatch.context() as m:
-        m.setattr(sites, "pattern_pass", lambda pr, *a, **k: laid.append(pr.required) or real(pr, *a, **k))
-        assert sites.spread_to_count(p, shapes, p.now() + 120) == (factor, held)
-    holding = 1 + sites.SPREADS.index(factor)  # 1.0 and the spreads up to the one chosen
-    assert laid[0] == p.required and set(laid[1:]) == {math.ceil(need)}
-    assert len(laid) - 1 < 4 * (holding + (1 if wider else 0))
     own = problem(tiny)
     assert sites.spread_to_count(own, ShapeCache(tiny.block), own.now() + 60) == (1.0, None)
