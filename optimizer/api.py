@@ -915,8 +915,8 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     """The attempt with free blocks moved to bare areas (``search.cover``), if it misses a coverage aim.
 
     Only a layout that reaches its count and porosity and stands is
-    repaired, while the search's time lasts, less half a settle's reserve
-    (a move's last steps can run a little past it). The moved layout is
+    repaired, until the moves must end for the settle that confirms them
+    (:func:`moves_until`). The moved layout is
     settled again (:func:`physics.verdict`, within the settle's reserve
     before ``end``), and written as moved, each block where it came to rest
     when let go among its neighbours; if it does not stand, or there is no
@@ -928,11 +928,7 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     if not attempt.on_target(problem) or attempt.stable is not True:
         return attempt, None
     reserve = settle_reserve(scene, meter=problem.meter)
-    # The moves end in time for the settle that confirms them, by the reserve the settles timed
-    # so far call for: the search's deadline was set from an earlier, smaller one (mini, seed 2:
-    # the moves ran to 112.8 s, the settle then needed 6.5 s before 118.6, and the four moves,
-    # made, were dropped unsettled).
-    short = replace(problem, deadline=min(problem.deadline, end - reserve) - reserve / 2)
+    short = moves_until(problem, end, reserve)
     if clock() + coverage_reserve(scene) > short.deadline:
         return attempt, None
     t0 = clock()
@@ -978,7 +974,7 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     """The attempt with blocks moved from outside the design prism into pockets (``search.trim``),
     where it reaches its count and stands but its porosity is over its window.
 
-    Within the search's time, less half a settle's reserve; ``keeps`` may
+    Until the moves must end for the settle that confirms them (:func:`moves_until`); ``keeps`` may
     refuse a move, strictest rule first (:func:`search.trim.trim_moves`; the
     coverage attempt's: meet as many coverage aims as before the trim, and
     then only cover better than the layout it would replace). The trimmed layout, nearer
@@ -995,10 +991,10 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     if not attempt.reached(problem) or attempt.stable is not True or over(problem, attempt.build) <= 0:
         return attempt, None
     reserve = settle_reserve(scene, meter=problem.meter)
-    if clock() + reserve > problem.deadline:
+    short = moves_until(problem, end, reserve)
+    if clock() + reserve / 2 > short.deadline:
         return attempt, None
     t0 = clock()
-    short = replace(problem, deadline=problem.deadline - reserve / 2)
     phase: dict[str, Any] = {"strategy": "trim", "attempt": number, "seconds": 0.0, "tries": 0}
     kept = attempt
     for _ in range(TRIM_TRIES):
@@ -1015,6 +1011,17 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
             break  # kept, not settled, or no time for another trim and its settle
     phase["seconds"] = clock() - t0
     return kept, phase
+
+
+def moves_until(problem: Problem, end: float, reserve: float) -> Problem:
+    """``problem`` with its deadline where a repair's moves must end (``trim_repair``,
+    ``cover_repair``): in time for the settle that confirms them before ``end``, by ``reserve``
+    (what the settles timed so far call for), less half a reserve, since a move's last steps
+    can run a little past it. The search's deadline was set from an earlier reserve, which
+    the settles timed since may have outgrown: on ``mini`` seed 2 the covering moves ran to
+    112.8 s, the settle then needed 6.5 s before 118.6 s, and four moves, made, were dropped
+    unsettled (7.5 % bare kept, where they had brought it to 5.6 %)."""
+    return replace(problem, deadline=min(problem.deadline, end - reserve) - reserve / 2)
 
 
 def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.random.Generator, end: float,

@@ -183,3 +183,27 @@ def test_what_came_of_a_trim_made_twice_in_words():
         "in a pocket holding more of it inside")
     assert api._trim_words({**phase, "tries": 1, "stood": None}, False) == (
         "; 2 of its blocks moved into the design prism took it to 56.97%, with no time left to settle it")
+
+
+def test_the_trim_ends_in_time_for_the_settle_that_the_timed_settles_ask_for(monkeypatch):
+    """``trim_repair`` on fake seconds (tests/clock.py), as the covering moves are
+    (tests/test_cover.py): the settles timed since the search's deadline was set call for 30 s
+    before ``end``, and the trim ends in time for that settle, which is made."""
+    from dataclasses import replace
+
+    from optimizer.search.problem import SETTLE_EXPONENT, SettleMeter
+    from tests.clock import WorkClock
+
+    scene = load_scene("mini")
+    build = _build(scene, ROWS)
+    clock = WorkClock(per_drop=0.01, per_settle=0.01).install(monkeypatch)
+    reserve = 30.0
+    meter = SettleMeter(rate=reserve / 2 / api.MEASURED_MARGIN / scene.required_blocks ** SETTLE_EXPONENT)
+    p = replace(problem(scene, seconds=55.0, clock=clock), meter=meter)
+    end = 62.0
+    assert api.settle_reserve(scene, meter=meter) == pytest.approx(reserve)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.trim_repair(p, attempt, np.random.default_rng(15), 1, end)
+    assert phase is not None and phase["moved"] > 0, "moves must be made for the test to mean anything"
+    assert phase["stood"] is not None, f"the trim ended at {phase['seconds']:.1f} s, too late to settle it"
+    assert clock() <= end
