@@ -50,3 +50,18 @@ class WorkClock:
         monkeypatch.setattr(Build, "lower", charged_lower)
         monkeypatch.setattr(physics, "settle", charged_settle)
         return self
+
+
+def with_reserve(problem, reserve: float):
+    """``problem`` with settles timed in its run (:class:`SettleMeter`) that call for a settle
+    reserve of ``reserve`` seconds (``optimizer.api.settle_reserve``), however far before its
+    end its search's deadline was set: a deadline the timed settles have outgrown."""
+    from dataclasses import replace
+
+    from optimizer.api import MEASURED_MARGIN, settle_reserve
+    from optimizer.search.problem import SETTLE_EXPONENT, SettleMeter
+
+    scene = problem.scene
+    meter = SettleMeter(rate=reserve / 2 / MEASURED_MARGIN / scene.required_blocks ** SETTLE_EXPONENT)
+    assert settle_reserve(scene, meter=meter) == pytest.approx(reserve)
+    return replace(problem, meter=meter)

@@ -185,18 +185,13 @@ def test_the_moves_end_in_time_for_the_settle_that_the_timed_settles_ask_for(min
     in time for that settle, and the moved layout is settled. (When the moves ran to the old
     deadline, less half a reserve, the settle had no time left, and moves made were dropped:
     ``mini`` seed 2 kept 7.5 % bare where its four moves had brought it to 5.6 %.)"""
-    from dataclasses import replace
-
     import optimizer.api as api
-    from optimizer.search.problem import SETTLE_EXPONENT, SettleMeter
+    from tests.clock import with_reserve
 
     scene, build = mini_reference
     clock = WorkClock(per_drop=0.001, per_settle=0.01).install(monkeypatch)
-    reserve = 30.0
-    meter = SettleMeter(rate=reserve / 2 / api.MEASURED_MARGIN / scene.required_blocks ** SETTLE_EXPONENT)
-    pr = replace(problem(scene, seconds=45.0, clock=clock), meter=meter)
+    pr = with_reserve(problem(scene, seconds=45.0, clock=clock), 30.0)
     end = 50.0
-    assert api.settle_reserve(scene, meter=meter) == pytest.approx(reserve)
     attempt = api._Attempt(build, [], {}, {"stable": True}, True)
     kept, phase = api.cover_repair(pr, attempt, np.random.default_rng(1), 1, end)
     assert phase is not None and phase["moved"] > 0, "moves must be made for the test to mean anything"

@@ -189,19 +189,13 @@ def test_the_trim_ends_in_time_for_the_settle_that_the_timed_settles_ask_for(mon
     """``trim_repair`` on fake seconds (tests/clock.py), as the covering moves are
     (tests/test_cover.py): the settles timed since the search's deadline was set call for 30 s
     before ``end``, and the trim ends in time for that settle, which is made."""
-    from dataclasses import replace
-
-    from optimizer.search.problem import SETTLE_EXPONENT, SettleMeter
-    from tests.clock import WorkClock
+    from tests.clock import WorkClock, with_reserve
 
     scene = load_scene("mini")
     build = _build(scene, ROWS)
     clock = WorkClock(per_drop=0.01, per_settle=0.01).install(monkeypatch)
-    reserve = 30.0
-    meter = SettleMeter(rate=reserve / 2 / api.MEASURED_MARGIN / scene.required_blocks ** SETTLE_EXPONENT)
-    p = replace(problem(scene, seconds=55.0, clock=clock), meter=meter)
+    p = with_reserve(problem(scene, seconds=55.0, clock=clock), 30.0)
     end = 62.0
-    assert api.settle_reserve(scene, meter=meter) == pytest.approx(reserve)
     attempt = api._Attempt(build, [], {}, {"stable": True}, True)
     kept, phase = api.trim_repair(p, attempt, np.random.default_rng(15), 1, end)
     assert phase is not None and phase["moved"] > 0, "moves must be made for the test to mean anything"
