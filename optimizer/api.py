@@ -63,7 +63,7 @@ from settle import Stopped
 
 from .search.anneal import Annealing
 from .search.beam import BeamSearch
-from .search.build import Build
+from .search.build import GROUND, Build
 from .search.cover import cover_moves
 from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
@@ -562,16 +562,33 @@ def optimize(
         if kept_given else None,
         cover_attempt=cover_note,
         searched=best.searched,
-        shortfall=shortfall(best.phases, problem.required, len(build), time_limit, bool(keep)),
+        shortfall=shortfall(best.phases, problem.required, len(build), time_limit, bool(keep),
+                            one_layer=single_layer(build)),
         coverage_left_out=report_.coverage is None,
     )
 
 
+def single_layer(build: Build) -> tuple[float, float] | None:
+    """Where every block of ``build`` rests on the foundation (one layer: each may touch its
+    neighbours too), how high the tolerance zone's crest is over the design's base, and the
+    block's height; else None."""
+    if not len(build) or any(GROUND not in build.supports[k] for k in build.order):
+        return None
+    scene = build.scene
+    return scene.tolerance.z_top - scene.design.z_bottom, scene.block.height
+
+
 def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_limit: float,
-              kept: bool) -> str | None:
+              kept: bool, one_layer: tuple[float, float] | None = None) -> str | None:
     """Why an attempt's search stopped short of the count, from its last pocket fill (its
     ``ended``): no room found, or no time left. Where no fill ran (``--strategy`` without it),
-    what the strategies that ran can place. None if it reached the count."""
+    what the strategies that ran can place. None if it reached the count.
+
+    With ``one_layer`` (:func:`single_layer`: every block on the foundation), no room found says
+    that no second layer found room under the zone's crest either, with its height and the
+    block's: on a mound under two blocks high (``benchmarks/scenes/shake-low-gentle.toml``, a
+    2.95 m zone and 1.66 m blocks) the pattern's second layer, nested 0.8 H, stands 4 cm out
+    of the zone, and no block lowered onto the first rests inside it (docs/coverage-study.md)."""
     if blocks >= required:
         return None
     ended = [p for p in phases if "ended" in p]
@@ -583,7 +600,11 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
                 f"pocket fill lowered {last['drops']} blocks at random over the mound, in every "
                 f"hanging, and let the {last['checks']} most promising go; it stopped after "
                 f"{last['fruitless']} rounds in a row in which none came to rest inside the "
-                "tolerance zone")
+                "tolerance zone" + ("" if one_layer is None else
+                                    f"; all {blocks} blocks stand on the foundation, one layer, and "
+                                    f"the zone's crest is {one_layer[0]:.2f} m over its base "
+                                    f"against a block {one_layer[1]:.2f} m tall: a second layer "
+                                    "of this block found no room under it"))
     if last["ended"] == "time":
         return (f"the search's time ran out (the limit of {time_limit:g} s, less what the settle and "
                 "checks keep): a longer --time-limit may place more")

@@ -944,6 +944,34 @@ def test_a_shortfall_in_words():
         "CP-SAT lays the ground layer only: the best choice among its 160 candidate poses on the "
         "foundation holds 52 blocks (proved optimal among them)")
     assert shortfall([solved], 75, 75, 5.0, kept=False) is None
+    # Every block on the foundation: the zone's height beside the block's, after the fill's words.
+    alone = shortfall([room], 61, 52, 120.0, kept=False, one_layer=(2.9534, 1.6601))
+    assert alone.startswith(shortfall([room], 61, 52, 120.0, kept=False))
+    assert alone.endswith("; all 52 blocks stand on the foundation, one layer, and the zone's crest is "
+                          "2.95 m over its base against a block 1.66 m tall: a second layer of this "
+                          "block found no room under it")
+    assert shortfall([room, time_out], 61, 52, 120.0, kept=False, one_layer=(2.95, 1.66)) == (
+        shortfall([room, time_out], 61, 52, 120.0, kept=False))  # out of time: not said
+
+
+def test_a_layout_is_one_layer_only_where_every_block_stands_on_the_foundation(tiny):
+    """``single_layer``: the zone's height over the base and the block's where every block rests
+    on the ground; None once one rests on blocks alone, or with no block."""
+    from optimizer.api import single_layer
+    from optimizer.search import sites
+    from optimizer.search.build import GROUND
+    from optimizer.search.shapes import ShapeCache
+
+    p = problem(tiny)
+    laid = sites.pattern_pass(p, ShapeCache(tiny.block), Build(tiny), (0.0, 0.0))
+    ground = [k for k in laid.order if GROUND in laid.supports[k]]
+    assert 0 < len(ground) < len(laid), "the slice's pattern lays a second layer"
+    assert single_layer(laid) is None
+    first = Build(tiny)
+    for k in ground:
+        first.place_at(laid.poses[k])
+    assert single_layer(first) == (tiny.tolerance.z_top - tiny.design.z_bottom, tiny.block.height)
+    assert single_layer(Build(tiny)) is None
 
 
 def test_a_mound_shorter_than_a_block_gets_no_block_and_no_error(tmp_path):
