@@ -37,7 +37,7 @@ demo: $(VENV)/.installed
 	@echo "open $(OUT)/mini-report.html in a browser; $(OUT)/mini.png for print"
 
 # Two workers, each taking whole test files (their module fixtures are built once): 6 min on
-# 2 cores against 11 min on one; 12 min on a slower 2-core machine without AVX-512 (735 s,
+# 2 cores against 11 min on one; 12 min on a slower 2-core machine without AVX-512 (698-735 s,
 # 2026-11-29). PYTEST_WORKERS=0 runs in one process.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed-test
