@@ -428,8 +428,17 @@ def scene_families(scene):
     return families(scene.block)
 
 
+@pytest.fixture(scope="module")
+def tall(tmp_path_factory):
+    """``big-shake``'s section, 12 m long: a mound taller than two layers of the pattern."""
+    path = tmp_path_factory.mktemp("tall") / "tall.toml"
+    path.write_text('name = "tall"\nblock = "shake-4t"\ntarget_porosity_percent = 56.0\n[design]\n'
+                    'crest_width_m = 5.0\nheight_m = 4.5\nslope_rise_run = [2.0, 3.0]\nlength_m = 12.0\n')
+    return load_scene(path)
+
+
 def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_margin_over_the_count(
-        tiny, tmp_path):
+        tiny, tall):
     """``spread_to_count`` spreads the pattern only where the count, laid as the pattern is,
     leaves over 5 % of the crest bare (a mound taller than two layers: big-shake's section, 12 m
     long), and
@@ -441,10 +450,6 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     from optimizer.search import sites
     from optimizer.search.shapes import ShapeCache
 
-    path = tmp_path / "tall.toml"
-    path.write_text('name = "tall"\nblock = "shake-4t"\ntarget_porosity_percent = 56.0\n[design]\n'
-                    'crest_width_m = 5.0\nheight_m = 4.5\nslope_rise_run = [2.0, 3.0]\nlength_m = 12.0\n')
-    tall = load_scene(path)
     shapes = ShapeCache(tall.block)
     p = problem(tall)
     counted = sites.pattern_pass(p, shapes, Build(tall), (0.0, 0.0))
@@ -461,3 +466,31 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     assert sites.spread_to_count(p, shapes, p.now() - 1.0) == (1.0, None)
     own = problem(tiny)
     assert sites.spread_to_count(own, ShapeCache(tiny.block), own.now() + 60) == (1.0, None)
+
+
+def test_a_spread_choice_cut_short_by_its_time_leaves_the_pattern_unspread(tall, monkeypatch):
+    """Where the choice's time runs out after a spread that holds the margin was found, but
+    before the next was measured, the pattern is not spread at all: the choice ran short of
+    time, and the spread pattern's longer search would too (on a slow machine ``big-shake``
+    spread so ended short of its count). Fake seconds: the clock passes the choice's end as
+    the second spread's first pass begins."""
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+
+    now = [0.0]
+    p = problem(tall, clock=lambda: now[0])
+    need = p.required * (1 + sites.SPREAD_MARGIN)
+    laid: dict[float, list[int]] = {}
+    real = sites.pattern_pass
+
+    def timed(q, *args, **kwargs):
+        factor = round(q.lattice.w / p.lattice.w, 4)
+        if factor == sites.SPREADS[1]:
+            now[0] = 1e9  # past the choice's end, before this pass
+        b = real(q, *args, **kwargs)
+        laid.setdefault(factor, []).append(len(b))
+        return b
+
+    monkeypatch.setattr(sites, "pattern_pass", timed)
+    assert sites.spread_to_count(p, ShapeCache(tall.block), 100.0) == (1.0, max(laid[1.0]))
+    assert max(laid[sites.SPREADS[0]]) >= need, "the first spread held the margin: it was found"
