@@ -143,6 +143,10 @@ def judge(method: str, scene: str, seed: int, out: Path, ran: dict) -> dict:
         "max_bare_m": None if cov["max_bare_m"] is None else round(cov["max_bare_m"], 3),
         "block_height_m": round(h, 4), "seconds": round(seconds, 1), "limit_s": round(limit, 1),
         "wall_s": round(ran["wall_s"], 1),
+        # How far the run spread its pattern (absent before the spread; 1.0 where it did not):
+        # on a slow machine whether it did decided `big-shake`'s count (docs/coverage-study.md).
+        "spread_factor": next((p.get("factor") for p in ran.get("phases", [])
+                               if p.get("strategy") == "spread"), None),
     })
     checks = {
         "count": report.blocks >= sc.required_blocks,
