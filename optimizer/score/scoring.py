@@ -41,6 +41,7 @@ every block laid well, for any non-negative weights.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Collection, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -527,8 +528,13 @@ def progress_percent(blocks: int, required: int) -> float:
 
 
 def quality_percent(points: float) -> float:
-    """Quality from penalty points: 100 x 0.99 ** points, percent in (0, 100]."""
-    return 100.0 * POINT_KEEPS ** points
+    """Quality from penalty points: 100 x 0.99 ** points, percent in (0, 100].
+
+    Any points at all keep it under 100, however few: 0.99 ** 1e-91 is 1.0 in floating
+    point, and a save with a fault must not score as the reference does.
+    """
+    quality = 100.0 * POINT_KEEPS ** points
+    return min(quality, math.nextafter(100.0, 0.0)) if points > 0.0 else quality
 
 
 def combined(progress: float, quality: float) -> float:
