@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from geometry.collision import collisions
@@ -79,11 +79,26 @@ def reference(scene, ref_layout) -> Reference:
     return Reference.of(scene, ref_layout.placed())
 
 
+#: The prefixes ``make test`` scores: every fifth block, the first and last two, and those the tests
+#: name (each takes a settle, about 1.2 s). ``make test-slow`` scores all 76 (``every_prefix``).
+SOME_PREFIXES = sorted({*range(0, 76, 5), 1, 30, 45, 74, 75})
+
+
+def _scored(scene, ref_layout, reference, counts) -> dict:
+    placed = ref_layout.placed()
+    return {n: score(scene, placed[:n], reference) for n in counts}
+
+
 @pytest.fixture(scope="module")
 def prefixes(scene, ref_layout, reference) -> dict:
+    """Prefixes of the reference in crane order (``SOME_PREFIXES``), scored."""
+    return _scored(scene, ref_layout, reference, SOME_PREFIXES)
+
+
+@pytest.fixture(scope="module")
+def every_prefix(scene, ref_layout, reference) -> dict:
     """Every prefix of the reference in crane order, 0 to 75 blocks, scored."""
-    placed = ref_layout.placed()
-    return {n: score(scene, placed[:n], reference) for n in range(len(placed) + 1)}
+    return _scored(scene, ref_layout, reference, range(len(ref_layout.placed()) + 1))
 
 
 def _moved(layout: Layout, reference: Layout) -> set[int]:
@@ -128,6 +143,10 @@ _weights = st.builds(ScoreWeights, **{f.name: st.floats(0.0, 1e3) for f in datac
 
 
 @settings(max_examples=300, deadline=None)
+# Found by hypothesis: a bare share of 1e-91 % is 1e-91 points, and 0.99 ** 1e-91 is 1.0.
+@example(blocks=1, required=1, faults=(0, 0, 0, 0, 0), percents=(0.0, 0.0, 0.0, 1e-91, 0.0), pace=None,
+         w=ScoreWeights(**{f.name: 0.0 for f in dataclasses.fields(ScoreWeights)}
+                        | {"coverage_per_percent": 1.0}))
 @given(blocks=st.integers(0, 300), required=st.integers(1, 200), faults=st.tuples(*[st.integers(0, 500)] * 5),
        percents=st.tuples(*[st.floats(0.0, 100.0)] * 5), pace=st.none() | st.floats(0.0, 1e5), w=_weights)
 def test_nothing_scores_above_100_or_below_0(blocks, required, faults, percents, pace, w):
@@ -148,11 +167,16 @@ def test_nothing_scores_above_100_or_below_0(blocks, required, faults, percents,
 # --- 2. progress counts ----------------------------------------------------------------------
 
 
-def test_every_prefix_scores_more_than_the_one_before(prefixes):
+@pytest.mark.parametrize("which", ["prefixes", pytest.param("every_prefix", marks=pytest.mark.slow)])
+def test_every_prefix_scores_more_than_the_one_before(request, which):
+    """Each prefix scored (of ``SOME_PREFIXES`` in ``make test``, all 76 in ``make test-slow``)
+    scores more than the one before it."""
+    prefixes = request.getfixturevalue(which)
+    assert len(prefixes) == (len(SOME_PREFIXES) if which == "prefixes" else 76)
     for w in WEIGHTS:
         scores = [prefixes[n].reweighted(w).score for n in sorted(prefixes)]
         rises = [b - a for a, b in zip(scores, scores[1:], strict=False)]
-        assert min(rises) > 0.0, f"{w}: the score falls after block {int(np.argmin(rises))}"
+        assert min(rises) > 0.0, f"{w}: the score falls after block {sorted(prefixes)[int(np.argmin(rises))]}"
 
 
 def _next_free(reference: Reference, placed: list) -> tuple[int, list]:
@@ -320,7 +344,9 @@ def test_a_missing_block_costs_progress_only(scene, reference, bases, missing):
 # --- 4. quality is judged at the trainee's stage --------------------------------------------
 
 
-def test_a_prefix_is_judged_against_the_reference_at_its_stage(prefixes, scene, ref_layout, reference):
+@pytest.mark.parametrize("which", ["prefixes", pytest.param("every_prefix", marks=pytest.mark.slow)])
+def test_a_prefix_is_judged_against_the_reference_at_its_stage(request, which, scene, ref_layout, reference):
+    prefixes = request.getfixturevalue(which)
     placed = ref_layout.placed()
     for n, report in prefixes.items():
         # Shown beside the reference's first n blocks ...
