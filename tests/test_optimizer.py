@@ -441,6 +441,61 @@ def test_origins_of_the_covering_attempt_are_ranked_by_coverage():
     assert rank_by_coverage(prob, shapes, Build(scene), origins, 4, -1.0) == origins
 
 
+def test_a_later_pass_of_the_pattern_is_shifted_as_its_origin_says():
+    """An origin ``(x, y, dx, dy, ...)`` lays the first pass from ``(x, y)`` and shifts each later
+    pass by its own ``(dx, dy)`` from where it nests by default: by a period, the same sites;
+    by a share of one, none of them."""
+    from optimizer.search.sites import pass_sites, pattern_passes, pattern_sites
+
+    scene = load_scene("mini")
+    prob = problem(scene)
+    w, p = prob.lattice.w, prob.lattice.p
+    origin = (0.3, 0.2)
+    assert pattern_passes(prob) >= 2
+    nested = pass_sites(prob, origin, 1)
+    assert pattern_sites(prob, (*origin, 0.0, 0.0)) == pattern_sites(prob, origin)
+    assert pass_sites(prob, (*origin, 0.5 * w, 0.0), 0) == pass_sites(prob, origin, 0)  # the first stays
+
+    def xy(sites):
+        return {(round(x, 6), round(y, 6)) for _, _, x, y in sites}
+
+    q = prob.lattice.q  # the lattice's periods are (0, p) and (w, q)
+    whole, off = pass_sites(prob, (*origin, w, q), 1), pass_sites(prob, (*origin, 0.37 * w, 0.41 * p), 1)
+    assert xy(whole) == xy(nested) and len(nested) > 10
+    assert len(off) > 10 and not xy(off) & xy(nested)
+
+
+def _uncapped(prob):
+    return replace(prob, required=10**9)
+
+
+def test_later_passes_fitted_to_a_wall_backed_section_hold_more_blocks():
+    """On ``wall-shake`` the pattern nested as tuned, from (0, 0), holds fewer than its 72 blocks;
+    fitted pass by pass (:func:`fit_layers`) it holds more, and origins rank by what they hold. Where the
+    pattern holds the count from every origin tried, :func:`fitted_origins` leaves them as
+    they were."""
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import fit_layers, fitted_origins, pattern_pass
+
+    scene = load_scene(ROOT / "benchmarks" / "scenes" / "wall-shake.toml")
+    prob = problem(scene)
+    shapes = ShapeCache(scene.block)
+    nested = pattern_pass(_uncapped(prob), shapes, Build(scene), (0.0, 0.0))
+    assert len(nested) < scene.required_blocks
+    fitted = fit_layers(prob, shapes, Build(scene), (0.0, 0.0), float("inf"))
+    assert len(fitted) > 2 and fitted[:2] == (0.0, 0.0)
+    laid = pattern_pass(_uncapped(prob), shapes, Build(scene), fitted)
+    assert len(laid) > len(nested)
+    ranked = fitted_origins(prob, shapes, Build(scene), [(0.0, 0.0), (0.9, 0.3)], float("inf"))
+    assert fitted in ranked and len(ranked) == 2
+    counts = [len(pattern_pass(prob, shapes, Build(scene), o)) for o in ranked]
+    assert counts == sorted(counts, reverse=True)
+    # Where every origin holds the count, they come back as they were.
+    roomy = replace(prob, required=20)
+    origins = [(0.0, 0.0), (0.9, 0.3)]
+    assert fitted_origins(roomy, shapes, Build(scene), origins, float("inf")) == origins
+
+
 def test_lattice_with_upper_layer_round_trips_through_json(tmp_path):
     from dataclasses import asdict
 

@@ -39,7 +39,7 @@ from .drop import Shape
 from .hangings import free, hanging_of
 from .problem import TARGET_POINTS, Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
-from .sites import laid_sites, pattern_sites, rank_by_coverage, rank_origins
+from .sites import fitted_origins, laid_sites, pattern_sites, rank_by_coverage, rank_origins
 
 HEIGHT_COST = 0.3
 SUPPORT_GAIN = 0.1
@@ -53,6 +53,10 @@ RANK_SECONDS = 60.0
 #: Set once, not tuned.
 COVER_RANK = 8
 COVER_RANK_SHARE = 0.1
+#: The share of the beam's time that fitting the pattern's later passes to the section may take
+#: (``sites.fitted_origins``), for the best origins whose pattern falls short of the count. Set
+#: once, not tuned.
+FIT_SHARE = 0.1
 #: With :meth:`BeamSearch.against_wall`, a pattern block that stands less than this many block
 #: heights from a wall is set down against it: the coverage's own distance (H/2), so no strip of
 #: crest that wide is left between the pattern and the wall. On ``wall-shake`` the top row stood
@@ -322,6 +326,8 @@ class BeamSearch(Strategy):
             cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n,
                                    self._laid(start))
+            origins = fitted_origins(problem, shapes, start, origins, problem.now() + FIT_SHARE * budget,
+                                     self._laid(start))
             if self.cover_rank:
                 origins = rank_by_coverage(problem, shapes, start, origins, self.cover_rank,
                                            problem.now() + COVER_RANK_SHARE * budget, self._laid(start))
