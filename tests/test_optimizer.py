@@ -465,6 +465,25 @@ def test_a_later_pass_of_the_pattern_is_shifted_as_its_origin_says():
     assert len(off) > 10 and not xy(off) & xy(nested)
 
 
+def test_a_crest_allowance_of_kilometres_adds_no_passes(tmp_path):
+    """The pattern lays as many passes under a crest allowance of 5 km as under one of a
+    block's bounding radius: a block above that fills none of the design prism. Counted from
+    the zone's height alone, a 1 km mound made about 3800 passes, and ``optimize`` ran out of
+    memory listing their sites before its first time check."""
+    from optimizer.search.sites import pattern_passes
+
+    def passes(rise: float) -> int:
+        path = tmp_path / f"rise-{rise}.toml"
+        path.write_text('block = "shake-4t"\ntarget_porosity_percent = 56.0\n[design]\ncrest_width_m = 4.0\n'
+                        'height_m = 3.0\nslope_rise_run = [3.0, 4.0]\nlength_m = 1000.0\n'
+                        f'[tolerance]\ncrest_rise_m = {rise}\nslope_lengthening_m = {2 * rise}\n')
+        return pattern_passes(problem(load_scene(str(path))))
+
+    r = load_scene("mini").block.bounding_radius
+    assert passes(5000.0) == passes(r) == passes(r + 10.0) < 10
+    assert passes(0.5) <= passes(r)
+
+
 def _uncapped(prob):
     return replace(prob, required=10**9)
 

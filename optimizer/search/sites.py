@@ -127,9 +127,14 @@ def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tup
 def pattern_passes(problem: Problem) -> int:
     """How many passes (layers) the pattern lays: a nested layer adds about 0.8 H of height,
     so the zone's height sets it (two for ``mini``'s 3.55 m zone and 1.66 m blocks, more for
-    taller mounds)."""
-    z = problem.scene.tolerance
-    return max(2, int(np.floor((z.z_top - z.z_bottom) / (0.8 * problem.scene.block.height))))
+    taller mounds). The zone counts no higher than a block's bounding radius over the
+    design's crest, as ``search_window`` bounds it across: a block above fills none of the
+    prism. A crest allowance of kilometres made thousands of passes, and ``optimize`` ran
+    out of memory before its first time check."""
+    scene = problem.scene
+    z = scene.tolerance
+    top = min(z.z_top, scene.design.z_top + scene.block.bounding_radius)
+    return max(2, int(np.floor((top - z.z_bottom) / (0.8 * scene.block.height))))
 
 
 def pass_sites(problem: Problem, origin: tuple[float, ...], n: int) -> list[tuple[str, float, float, float]]:
