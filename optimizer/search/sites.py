@@ -87,8 +87,8 @@ def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins
     then keep their order, after the ranked ones (a pass cut short ranks by what it placed).
     """
     firsts: dict[float, int] = {}
-    for i, (x, _) in enumerate(origins):
-        firsts.setdefault(round(x, 3), i)
+    for i, origin in enumerate(origins):  # an origin may go on with its later passes' shifts
+        firsts.setdefault(round(origin[0], 3), i)
     chosen = sorted(firsts.values())[:n]
     scored = []
     for i in chosen:
@@ -186,11 +186,9 @@ def fit_layers(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple
     before it as laid, shifts across the crest (``LAYER_SHIFTS[0]`` over one
     period) and then along it at the best across are each laid in full, no
     count to stop them; a shift is kept only if it lays strictly more than the
-    nested default. On the pattern's quick pass from 12 origins (no physics,
-    2026-11-29), it raised the blocks the pattern holds, fewest / median /
-    most: ``wall-shake`` 64 / 66 / 72 to 66 / 72 / 74 (72 required), the same
-    section on rubble 58 / 65 / 69 to 66 / 72 / 73, ``tetrapod-big`` 53 / 57 / 61
-    to 54 / 59 / 62 (75 required), ``mini`` 74 / 86 / 88 to 81 / 87 / 93.
+    nested default. What that holds, against the pattern nested as tuned, is measured
+    by ``benchmarks/studies/pattern_capacity.py`` (docs/benchmarks.md, "Later layers
+    fitted to the section").
     Trials stop at ``stop`` (``problem.now()``), within a pass too: a pass cut short is
     not weighed, and the shifts found by then are kept.
     """
