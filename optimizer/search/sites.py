@@ -111,17 +111,31 @@ def pattern_pass(problem: Problem, shapes: ShapeCache, start: Build, origin: tup
     that ranks an origin. The sites the ``laid`` blocks of ``start`` are in the way
     of are skipped (:func:`laid_sites`; kept ones by default)."""
     b = start.copy()
-    sites = pattern_sites(problem, origin)
+    lay_sites(problem, shapes, start, b, pattern_sites(problem, origin), stop, laid, problem.required)
+    return b
+
+
+def lay_sites(problem: Problem, shapes: ShapeCache, start: Build, onto: Build,
+              sites: list[tuple[str, float, float, float]], stop: float,
+              laid: Collection[int] | None = None, most: float = float("inf")) -> int | None:
+    """Lower ``sites`` in order onto ``onto``, placing each that lands, until ``onto`` holds
+    ``most`` blocks; the sites the ``laid`` blocks of ``start`` are in the way of are skipped
+    (:func:`laid_sites`). Returns the blocks placed, or None where ``stop``
+    (``problem.now()``) came first."""
     taken = laid_sites(problem, start, sites, laid)
+    placed = 0
     for i, (fam, yaw, x, y) in enumerate(sites):
-        if len(b) >= problem.required or problem.now() > stop:
+        if len(onto) >= most:
             break
+        if problem.now() > stop:
+            return None
         if i in taken:
             continue
-        c = b.lower(shapes.hung(fam, yaw), x, y)
+        c = onto.lower(shapes.hung(fam, yaw), x, y)
         if c is not None:
-            b.place(c)
-    return b
+            onto.place(c)
+            placed += 1
+    return placed
 
 
 def pattern_passes(problem: Problem) -> int:
@@ -196,19 +210,7 @@ def fit_layers(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple
     b = start.copy()
 
     def lay(onto: Build, sites: list) -> int | None:
-        """Blocks of ``sites`` laid onto ``onto``; None if ``stop`` came first."""
-        taken = laid_sites(problem, start, sites, laid)
-        n = 0
-        for i, (fam, yaw, x, y) in enumerate(sites):
-            if problem.now() > stop:
-                return None
-            if i in taken:
-                continue
-            c = onto.lower(shapes.hung(fam, yaw), x, y)
-            if c is not None:
-                onto.place(c)
-                n += 1
-        return n
+        return lay_sites(problem, shapes, start, onto, sites, stop, laid)
 
     def trial(below: Build, shifts: list[float], n: int,
               shift: tuple[float, float]) -> tuple[int | None, Build]:
