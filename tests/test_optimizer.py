@@ -519,6 +519,34 @@ def test_later_passes_fitted_to_a_wall_backed_section_hold_more_blocks():
     assert fitted_origins(roomy, shapes, Build(scene), origins, float("inf")) == origins
 
 
+def test_fitting_does_not_lay_again_the_quick_passes_the_ranking_laid(monkeypatch):
+    """The beam ranks origins by quick passes of the pattern and then fits the best of them: the
+    blocks those passes hold are handed on (``counts``), not laid again (a pass over ``big-shake``
+    takes about a second), and the origins come out as when they are laid again."""
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+
+    scene = load_scene(ROOT / "benchmarks" / "scenes" / "wall-shake.toml")
+    prob = problem(scene)
+    shapes = ShapeCache(scene.block)
+    counts: dict = {}
+    ranked = sites.rank_origins(prob, shapes, np.random.default_rng(1), Build(scene), 3, float("inf"),
+                                counts=counts)
+    assert set(counts) == set(ranked)
+    assert counts[(0.0, 0.0)] == len(sites.pattern_pass(prob, shapes, Build(scene), (0.0, 0.0)))
+    again = sites.fitted_origins(prob, shapes, Build(scene), ranked, float("inf"))
+    laid = []
+    real = sites.pattern_pass
+
+    def counted(problem, shapes, start, origin, *args, **kwargs):
+        laid.append(origin)
+        return real(problem, shapes, start, origin, *args, **kwargs)
+
+    monkeypatch.setattr(sites, "pattern_pass", counted)
+    assert sites.fitted_origins(prob, shapes, Build(scene), ranked, float("inf"), counts=counts) == again
+    assert not set(laid) & set(ranked[:sites.FITTED])  # only the shifted passes are laid
+
+
 def test_lattice_with_upper_layer_round_trips_through_json(tmp_path):
     from dataclasses import asdict
 

@@ -324,10 +324,11 @@ class BeamSearch(Strategy):
             n = max(4, round(self.scan_origins * min(1.0, 100 / max(problem.required, 1))
                              * min(1.0, budget / RANK_SECONDS)))
             cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
+            counts: dict[tuple[float, ...], int] = {}  # the quick passes' blocks, laid once
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n,
-                                   self._laid(start))
+                                   self._laid(start), counts)
             origins = fitted_origins(problem, shapes, start, origins, problem.now() + FIT_SHARE * budget,
-                                     self._laid(start))
+                                     self._laid(start), counts=counts)
             if self.cover_rank:
                 origins = rank_by_coverage(problem, shapes, start, origins, self.cover_rank,
                                            problem.now() + COVER_RANK_SHARE * budget, self._laid(start))

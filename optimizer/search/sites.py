@@ -23,7 +23,8 @@ from .shapes import ShapeCache
 
 def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator, start: Build,
                  probes: int, stop: float, scans: int = 0, n: int = 16,
-                 laid: Collection[int] | None = None) -> list[tuple[float, float]]:
+                 laid: Collection[int] | None = None,
+                 counts: dict[tuple[float, ...], int] | None = None) -> list[tuple[float, float]]:
     """Pattern origins, best first: by the volume their sites alone place in the design prism.
 
     First ``probes`` origins, (0, 0) and seeded random ones over one lattice cell;
@@ -41,7 +42,9 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     are left out (:func:`laid_sites`; kept ones by default). Trials stop at
     ``stop`` (``problem.now()``). A trial the deadline cuts short is dropped,
     unless it is the only one: then the origin it drew is all there is to rank
-    (a budget too short for one pass over a long scene).
+    (a budget too short for one pass over a long scene). Where ``counts`` is given, the
+    blocks each pass that ended before ``stop`` holds are entered in it, by origin, for
+    :func:`fitted_origins`.
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
@@ -50,9 +53,12 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     scored: list[tuple[float, int, tuple[float, float]]] = []
 
     def trial(origin: tuple[float, float]) -> None:
-        volume = pattern_pass(problem, shapes, start, origin, stop, laid).inside_volume
-        if not scored or problem.now() <= stop:
-            scored.append((-volume, len(scored), origin))
+        build = pattern_pass(problem, shapes, start, origin, stop, laid)
+        whole = problem.now() <= stop
+        if counts is not None and whole:
+            counts[origin] = len(build)
+        if not scored or whole:
+            scored.append((-build.inside_volume, len(scored), origin))
 
     for origin in trials:
         if scored and problem.now() > stop:
@@ -245,7 +251,8 @@ def fit_layers(problem: Problem, shapes: ShapeCache, start: Build, origin: tuple
 
 def fitted_origins(problem: Problem, shapes: ShapeCache, start: Build, origins: list[tuple[float, ...]],
                    stop: float, laid: Collection[int] | None = None,
-                   n: int = FITTED) -> list[tuple[float, ...]]:
+                   n: int = FITTED, counts: dict[tuple[float, ...], int] | None = None
+                   ) -> list[tuple[float, ...]]:
     """``origins`` (ranked, best first) with the first ``n`` whose pattern falls short of the
     required count fitted layer by layer (:func:`fit_layers`), where that lays more of it.
 
@@ -253,12 +260,16 @@ def fitted_origins(problem: Problem, shapes: ShapeCache, start: Build, origins: 
     equal counts keep their order; the rest follow in theirs. Where none is, ``origins`` come
     back as they were. An origin whose pattern holds the count is left as it is: where the
     pattern has room to spare its layers stay nested as tuned. Trials stop at ``stop``.
+    ``counts`` are the blocks quick passes already laid hold, by origin (:func:`rank_origins`):
+    those passes are not laid again.
     """
     scored, changed = [], False
     for i, origin in enumerate(origins[:n]):
         if problem.now() > stop:
             break
-        count = len(pattern_pass(problem, shapes, start, origin, stop, laid))
+        count = (counts or {}).get(origin)
+        if count is None:
+            count = len(pattern_pass(problem, shapes, start, origin, stop, laid))
         if count < problem.required:
             shifted = fit_layers(problem, shapes, start, origin, stop, laid)
             if len(shifted) > 2 and problem.now() <= stop:
