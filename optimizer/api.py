@@ -736,7 +736,10 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         if len(build) >= problem.required or not confirmation.stable or clock() >= deadline:
             break
         t0 = clock()
-        filled = fill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng)
+        # Where the search reached its count and the settle took blocks out, there was room for
+        # them: the fill goes on with a sweep of the whole mound where its random drops find none.
+        refill = fill.sweeping() if searched >= problem.required else fill
+        filled = refill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng)
         more = filled.build
         gained = len(more) > len(build)
         if gained:

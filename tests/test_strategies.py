@@ -494,3 +494,66 @@ def test_a_spread_choice_cut_short_by_its_time_leaves_the_pattern_unspread(tall,
     monkeypatch.setattr(sites, "pattern_pass", timed)
     assert sites.spread_to_count(p, ShapeCache(tall.block), 100.0) == (1.0, max(laid[1.0]))
     assert max(laid[sites.SPREADS[0]]) >= need, "the first spread held the margin: it was found"
+
+
+@pytest.fixture
+def coarse_sweep(monkeypatch):
+    """A sweep's grid coarse enough for a test (every node on bare ground is a valid drop)."""
+    from optimizer.search import fill
+
+    monkeypatch.setattr(fill, "SWEEP_STEP", 0.4)
+    monkeypatch.setattr(fill, "SWEEP_YAWS", 2)
+
+
+def test_a_sweep_places_blocks_where_the_random_drops_found_no_room(tiny, coarse_sweep):
+    """With no random drops at all, a fill ends finding no room; asked to sweep, it goes on
+    over a grid of every hanging and places the count, valid, each block the best that comes
+    to rest (the later ones from the places near the block before, lowered again)."""
+    from dataclasses import replace
+
+    pr = replace(problem(tiny), required=4)
+    blind = PocketFill(accept=raised_check, draws=0, checks=10, patience=1)
+    none = blind.run(pr, None, np.random.default_rng(1))
+    assert len(none.build) == 0 and none.stats.ended == "room" and none.stats.swept == 0
+    swept = blind.sweeping().run(pr, None, np.random.default_rng(1))
+    assert len(swept.build) == 4 and swept.stats.ended == "count" and swept.stats.swept > 0
+    assert swept.stats.placed == 4
+    assert_valid(tiny, swept.build)
+
+
+def test_a_sweep_near_a_point_lowers_only_the_nodes_that_near_it(tiny, coarse_sweep):
+    from optimizer.search.build import fill_window
+    from optimizer.search.fill import sweep
+    from optimizer.search.shapes import ShapeCache
+
+    pr, shapes = problem(tiny), ShapeCache(tiny.block)
+    window = fill_window(tiny)
+    every, drops, cut = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0))
+    at = np.array([0.0, tiny.length / 2])
+    near, near_drops, _ = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0), around=(at, 1.0))
+    assert not cut and every and near and near_drops < drops
+    assert all(not c.loose for c in every)
+    assert all(np.hypot(*(c.pose.position[:2] - at)) <= 1.0 + 1e-9 for c in near)
+    def poses(cands):
+        return {tuple(np.round(c.pose.position, 9)) for c in cands}
+
+    assert poses(near) == poses(c for c in every if np.hypot(*(c.pose.position[:2] - at)) <= 1.0)
+
+
+@pytest.mark.parametrize("name", ["mini", str(ROOT / "benchmarks" / "scenes" / "mini-rough.toml")])
+def test_a_place_clear_of_ceiling_refuses_only_what_lowering_refuses(name):
+    """``Build.clear_of_ceiling`` tests many places at once at the foundation's lowest point: every
+    place it refuses, ``lower`` refuses too, on flat ground and on rubble; over the whole zone's
+    width it refuses some places, and lets through every one ``lower`` places."""
+    from optimizer.search.shapes import ShapeCache
+
+    scene = load_scene(name)
+    build = Build(scene)
+    rng = np.random.default_rng(3)
+    xy = np.column_stack([rng.uniform(-6.5, 6.5, 300), rng.uniform(0.0, scene.length, 300)])
+    for family in scene_families(scene):
+        shape = ShapeCache(scene.block).hung(family, float(rng.uniform(0, 2 * np.pi)))
+        clear = build.clear_of_ceiling(shape, xy)
+        lowered = np.array([build.lower(shape, float(x), float(y)) is not None for x, y in xy])
+        assert not np.any(lowered & ~clear)
+        assert 0 < lowered.sum() and clear.sum() < len(xy)
