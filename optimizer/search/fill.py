@@ -79,6 +79,8 @@ class FillStats(Stats):
 #: places random drops had missed.
 SWEEP_STEP = 0.12
 SWEEP_YAWS = 12
+#: Nodes whose places are tested against the zone's ceiling at once.
+SWEEP_CHUNK = 1024
 
 
 class PocketFill(Strategy):
@@ -226,19 +228,23 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
         nodes = nodes[np.hypot(*(nodes - around[0]).T) <= around[1]]
     nodes = nodes[rng.permutation(len(nodes))]
     hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(shapes.block, problem.families, SWEEP_YAWS)]
-    clear = np.column_stack([build.clear_of_ceiling(shape, nodes) for shape in hung])
     found: list[Candidate] = []
     drops = 0
-    for (x, y), row in zip(nodes, clear, strict=True):
+    # In chunks, so that a mound kilometres long is tested as the clock allows, not all at once.
+    for chunk in np.array_split(nodes, max(1, len(nodes) // SWEEP_CHUNK)):
         if problem.time_left() <= 0:
             return found, drops, True
-        for shape, ok in zip(hung, row, strict=True):
-            if not ok:
-                continue
-            drops += 1
-            c = build.lower(shape, float(x), float(y))
-            if c is not None:
-                found.append(c)
+        clear = np.column_stack([build.clear_of_ceiling(shape, chunk) for shape in hung])
+        for (x, y), row in zip(chunk, clear, strict=True):
+            if problem.time_left() <= 0:
+                return found, drops, True
+            for shape, ok in zip(hung, row, strict=True):
+                if not ok:
+                    continue
+                drops += 1
+                c = build.lower(shape, float(x), float(y))
+                if c is not None:
+                    found.append(c)
     return found, drops, False
 
 
