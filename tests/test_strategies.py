@@ -528,10 +528,10 @@ def test_a_sweep_near_a_point_lowers_only_the_nodes_that_near_it(tiny, coarse_sw
 
     pr, shapes = problem(tiny), ShapeCache(tiny.block)
     window = fill_window(tiny)
-    every, drops, cut = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0))
+    every, drops, whole = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0))
     at = np.array([0.0, tiny.length / 2])
     near, near_drops, _ = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0), around=(at, 1.0))
-    assert not cut and every and near and near_drops < drops
+    assert whole and every and near and near_drops < drops
     assert all(not c.loose for c in every)
     assert all(np.hypot(*(c.pose.position[:2] - at)) <= 1.0 + 1e-9 for c in near)
     def poses(cands):
@@ -557,3 +557,15 @@ def test_a_place_clear_of_ceiling_refuses_only_what_lowering_refuses(name):
         lowered = np.array([build.lower(shape, float(x), float(y)) is not None for x, y in xy])
         assert not np.any(lowered & ~clear)
         assert 0 < lowered.sum() and clear.sum() < len(xy)
+
+
+def test_a_sweep_stopped_before_it_begins_says_it_did_not_cover_the_mound(tiny, coarse_sweep):
+    from optimizer.search.build import fill_window
+    from optimizer.search.fill import sweep
+    from optimizer.search.shapes import ShapeCache
+
+    pr, shapes = problem(tiny), ShapeCache(tiny.block)
+    window = fill_window(tiny)
+    every, drops, whole = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0))
+    none, nothing, done = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0), stop=pr.now() - 1)
+    assert whole and not done and none == [] and nothing == 0 and drops > 0

@@ -145,14 +145,16 @@ class Build:
     def clear_of_ceiling(self, shape: Shape, xy: np.ndarray) -> np.ndarray:
         """Which of the places ``xy`` (n, 2) :meth:`lower` does not refuse without a drop.
 
-        The same first test as :meth:`lower`'s, for many places at once, at the foundation's
-        lowest point rather than the ground under each: a block that crosses a face of the
-        zone's ceiling there crosses it wherever it rests, higher. So a place it refuses,
-        :meth:`lower` refuses too (a sweep of the mound skips half its drops by it).
+        The same first test as :meth:`lower`'s, for many places at once, with the block's
+        lowest piece on the foundation's lowest point rather than on the ground under each:
+        a block that crosses a face of the zone's ceiling there crosses it wherever it rests,
+        no lower. So a place it refuses, :meth:`lower` refuses too (a sweep of the mound skips
+        half its drops by it).
         """
         normals, offsets = self._ceiling
         turned = Pose([0.0, 0.0, 0.0], shape.quaternion).apply(self.block.vertices) @ normals.T
-        at = np.column_stack([xy, np.full(len(xy), self.scene.foundation.lowest)]) @ normals.T
+        low = self.scene.foundation.lowest - float(shape.lows.min())
+        at = np.column_stack([xy, np.full(len(xy), low)]) @ normals.T
         return np.all(at + turned.max(axis=0) <= offsets + tol.distance, axis=1)
 
     # --- changing ----------------------------------------------------------------

@@ -62,7 +62,11 @@ class FillStats(Stats):
         Rounds in a row, at its end, in which no candidate came to rest.
     ended : str
         Why it stopped: ``"count"`` (reached), ``"room"`` (``patience``
-        fruitless rounds, the last not cut short by the clock) or ``"time"``.
+        fruitless rounds, the last not cut short by the clock, and with ``sweep`` a sweep
+        of every node whose best candidates did not come to rest) or ``"time"``.
+    swept : int
+        Blocks the sweep lowered (0 without one); they are not in ``drops``. The sweep's
+        candidates let go are in ``checks``, and the blocks it placed in ``placed``.
     """
 
     placed: int = 0
@@ -81,6 +85,8 @@ SWEEP_STEP = 0.12
 SWEEP_YAWS = 12
 #: Nodes whose places are tested against the zone's ceiling at once.
 SWEEP_CHUNK = 1024
+#: The share of the time left a sweep may take; the rest is for letting its candidates go.
+SWEEP_SHARE = 0.8
 
 
 class PocketFill(Strategy):
@@ -170,24 +176,28 @@ class PocketFill(Strategy):
                ) -> tuple[int, int, int, bool]:
         """Blocks placed from sweeps of ``build`` (changed in place), one at a time, the best by
         :func:`optimizer.search.beam.gain` that comes to rest first. After each, only the
-        places near it are swept again, and the others lowered again. Returns the blocks
-        placed, the drops, the candidates let go, and whether the clock cut it short.
+        places near it are swept again, and the others lowered again; those let go that did
+        not come to rest are not let go again. Returns the blocks placed, the drops, the
+        candidates let go, and whether it ended short of sweeping every node or on the clock.
 
         Every candidate is let go among its neighbours (:func:`physics.settle_in`), on the bare
         foundation too, whatever ``accept`` does: the places a sweep finds are few, and on
         ``wall-rough`` seed 1 the best of them by gain was a block on the rubble at the toe,
         which, kept where it touched, tipped over in the settle of the whole layout."""
         window = fill_window(problem.scene)
-        found, drops, cut = sweep(problem, build, shapes, window, rng)
+        # The sweep may take most of the time left (on wall-rough seed 1 it took 36 s of the
+        # refill's 45), the rest is for letting its candidates go: the few it finds.
+        found, drops, whole = sweep(problem, build, shapes, window, rng,
+                                    stop=problem.now() + SWEEP_SHARE * problem.time_left())
         placed = checks = 0
-        while found and len(build) < problem.required and not cut:
+        while found and len(build) < problem.required and problem.time_left() > 0:
             found.sort(key=lambda c: -gain(problem, c))
-            rested = None
+            rested, tried = None, 0
             for c in found[: self.checks]:
                 if problem.time_left() <= 0:
-                    cut = True
                     break
                 checks += 1
+                tried += 1
                 rested = settle_in(problem, build, c)
                 if rested is not None:
                     break
@@ -196,18 +206,20 @@ class PocketFill(Strategy):
             build.place(rested)
             placed += 1
             problem.tell(self.name, build, f"{len(build)} placed (sweep)")
-            # Only drops within reach of the new block change: those are lowered again.
+            # Only drops within reach of the new block change: those are lowered again. The
+            # ones let go before it did not come to rest, and are not let go again.
             reach = 2.0 * problem.scene.block.bounding_radius
             at = rested.pose.position[:2]
-            far = [c for c in found if np.hypot(*(c.pose.position[:2] - at)) > reach]
-            near, more, cut = sweep(problem, build, shapes, window, rng, around=(at, reach))
-            found, drops = far + near, drops + more
-        return placed, drops, checks, cut
+            far = [c for c in found[tried:] if np.hypot(*(c.pose.position[:2] - at)) > reach]
+            near, more, done = sweep(problem, build, shapes, window, rng, around=(at, reach))
+            found, drops, whole = far + near, drops + more, whole and done
+        return placed, drops, checks, not whole or problem.time_left() <= 0
 
 
 def sweep(problem: Problem, build: Build, shapes: ShapeCache,
           window: tuple[tuple[float, float], tuple[float, float]], rng: np.random.Generator,
-          around: tuple[np.ndarray, float] | None = None) -> tuple[list[Candidate], int, bool]:
+          around: tuple[np.ndarray, float] | None = None, stop: float | None = None
+          ) -> tuple[list[Candidate], int, bool]:
     """Every drop of a grid over ``window``, ``SWEEP_STEP`` of H apart, in each hanging at
     ``SWEEP_YAWS`` yaws over its symmetry's period, that is valid as lowered (not loose);
     with ``around`` (a point and a distance), only the nodes that near it.
@@ -217,9 +229,11 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
     3 where the layout then stands (``benchmarks/studies/room_sweep.py``). The nodes are
     taken in a random order, so a sweep the clock cuts short has covered the window evenly.
     Places the block crosses the zone's ceiling at even if it rests on the foundation's lowest
-    point are not lowered (:meth:`Build.clear_of_ceiling`). Returns the candidates, the drops
-    lowered, and whether the deadline cut it short.
+    point are not lowered (:meth:`Build.clear_of_ceiling`). Lowering stops at ``stop``
+    (``problem.now()``; the deadline by default). Returns the candidates, the drops lowered,
+    and whether every node was lowered at.
     """
+    stop = problem.deadline if stop is None else stop
     (x0, x1), (y0, y1) = window
     step = SWEEP_STEP * problem.scene.block.height
     xs, ys = np.arange(x0, x1 + 1e-9, step), np.arange(y0, y1 + 1e-9, step)
@@ -228,16 +242,18 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
         nodes = nodes[np.hypot(*(nodes - around[0]).T) <= around[1]]
     nodes = nodes[rng.permutation(len(nodes))]
     hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(shapes.block, problem.families, SWEEP_YAWS)]
+    if not hung:  # only free turns: no hanging to sweep
+        return [], 0, True
     found: list[Candidate] = []
     drops = 0
     # In chunks, so that a mound kilometres long is tested as the clock allows, not all at once.
     for chunk in np.array_split(nodes, max(1, len(nodes) // SWEEP_CHUNK)):
-        if problem.time_left() <= 0:
-            return found, drops, True
+        if problem.now() > stop:
+            return found, drops, False
         clear = np.column_stack([build.clear_of_ceiling(shape, chunk) for shape in hung])
         for (x, y), row in zip(chunk, clear, strict=True):
-            if problem.time_left() <= 0:
-                return found, drops, True
+            if problem.now() > stop:
+                return found, drops, False
             for shape, ok in zip(hung, row, strict=True):
                 if not ok:
                     continue
@@ -245,7 +261,7 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
                 c = build.lower(shape, float(x), float(y))
                 if c is not None:
                     found.append(c)
-    return found, drops, False
+    return found, drops, True
 
 
 def random_drop(problem: Problem, build: Build, shapes: ShapeCache, rng: np.random.Generator,
