@@ -540,11 +540,12 @@ def test_a_sweep_near_a_point_lowers_only_the_nodes_that_near_it(tiny, coarse_sw
     assert poses(near) == poses(c for c in every if np.hypot(*(c.pose.position[:2] - at)) <= 1.0)
 
 
-@pytest.mark.parametrize("name", ["mini", str(ROOT / "benchmarks" / "scenes" / "mini-rough.toml")])
+@pytest.mark.parametrize("name", ["mini", *(str(ROOT / "benchmarks" / "scenes" / f"{n}.toml")
+                                             for n in ("mini-rough", "wall-shake"))])
 def test_a_place_clear_of_ceiling_refuses_only_what_lowering_refuses(name):
     """``Build.clear_of_ceiling`` tests many places at once at the foundation's lowest point: every
-    place it refuses, ``lower`` refuses too, on flat ground and on rubble; over the whole zone's
-    width it refuses some places, and lets through every one ``lower`` places."""
+    place it refuses, ``lower`` refuses too, on flat ground, on rubble and beside a wall; over the
+    whole zone's width it refuses some places, and lets through every one ``lower`` places."""
     from optimizer.search.shapes import ShapeCache
 
     scene = load_scene(name)
