@@ -37,8 +37,9 @@ demo: $(VENV)/.installed
 	@echo "open $(OUT)/mini-report.html in a browser; $(OUT)/mini.png for print"
 
 # Two workers, each taking whole test files (their module fixtures are built once): 6 min on
-# 2 cores against 11 min on one; 11-12 min on a slower 2-core machine without AVX-512 (651-735 s,
-# 2026-11-29: 651 s for 773 tests on a clean clone at 3f998b7). PYTEST_WORKERS=0 runs in one process.
+# 2 cores against 11 min on one (398 s on a clean clone at 4aa94cb, 2026-12-06); 11-12 min on a
+# slower 2-core machine without AVX-512 (651-735 s, 2026-11-29: 651 s for 773 tests on a clean
+# clone at 3f998b7). PYTEST_WORKERS=0 runs in one process.
 PYTEST_WORKERS ?= 2
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest -q -n $(PYTEST_WORKERS) --dist loadfile
