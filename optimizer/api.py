@@ -53,6 +53,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from geometry.checks import CheckReport, check_layout, check_not_crowded
 from geometry.coverage import AIM_BARE_PERCENT, AIM_MAX_BARE_H, BARE_FRACTION, CoverageReport
@@ -674,6 +675,20 @@ class _Attempt:
         return self.stable is not False, min(len(self.build), problem.required), -off
 
 
+def taken_out(before: Build, after: Build) -> np.ndarray:
+    """Where (x, y) the blocks of ``before`` stood that ``after`` (its confirmed layout) has no
+    block near: those a confirming settle took out. A settle moves the blocks it keeps by
+    centimetres, so a block of ``after`` within half a bounding radius is the same block."""
+    if not len(before):
+        return np.empty((0, 2))
+    at = np.array([before.poses[k].position for k in before.order])
+    if not len(after):
+        return at[:, :2]
+    near = cKDTree(np.array([after.poses[k].position for k in after.order]))
+    d, _ = near.query(at, distance_upper_bound=0.5 * before.block.bounding_radius)
+    return at[~np.isfinite(d), :2]
+
+
 def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, keep: Sequence[Placement],
              rng: np.random.Generator, settle_layout: bool, end: float, attempt: int,
              all_or_nothing: bool = False, end_for: Callable[[int], float] | None = None) -> _Attempt:
@@ -720,6 +735,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
         return _Attempt(build, phases, gap, {"skipped": "time"}, None, search_seconds,
                         search_seconds=search_seconds)
     searched = len(build)
+    before = build
     build, confirmation = confirm(problem, build, rng, origin, end, whole=all_or_nothing)
     if confirmation.stopped:
         # Its settle ran past the end and was stopped: the layout is written as searched, and says
@@ -737,8 +753,9 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
             break
         t0 = clock()
         # Where the search reached its count and the settle took blocks out, there was room for
-        # them: the fill goes on with a sweep of the whole mound where its random drops find none.
-        refill = fill.sweeping() if searched >= problem.required else fill
+        # them: the fill goes on with a sweep of the mound where its random drops find none,
+        # first where those blocks were.
+        refill = fill.sweeping(first=taken_out(before, build)) if searched >= problem.required else fill
         filled = refill.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng)
         more = filled.build
         gained = len(more) > len(build)
@@ -752,7 +769,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                        "added": len(again) - len(build) if gained else 0, **filled.stats.to_dict()})
         if not gained:
             break
-        build, confirmation = again, check
+        before, (build, confirmation) = more, (again, check)
         searched = max(searched, len(more))
     return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, clock() - start,
                     searched=searched, search_seconds=search_seconds)

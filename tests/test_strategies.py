@@ -538,6 +538,64 @@ def test_a_sweep_near_a_point_lowers_only_the_nodes_that_near_it(tiny, coarse_sw
         return {tuple(np.round(c.pose.position, 9)) for c in cands}
 
     assert poses(near) == poses(c for c in every if np.hypot(*(c.pose.position[:2] - at)) <= 1.0)
+    # ``beyond`` is the rest of the grid; around several points, the nodes near any of them.
+    rest, _, _ = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0), around=(at, 1.0),
+                       beyond=True)
+    assert poses(rest) == poses(every) - poses(near)
+    two = np.array([at, [0.0, 0.5]])
+    both, _, _ = sweep(pr, Build(tiny), shapes, window, np.random.default_rng(0), around=(two, 1.0))
+    assert poses(both) == poses(c for c in every
+                                if min(np.hypot(*(c.pose.position[:2] - p)) for p in two) <= 1.0)
+    assert poses(near) < poses(both)
+
+
+def test_a_refill_sweeps_first_where_the_settle_took_blocks_out(tiny, coarse_sweep, monkeypatch):
+    """A sweep told where blocks were taken out places its first block there, though the best
+    place of the whole mound by gain is elsewhere, and goes on over the rest of the mound while
+    the count is short."""
+    from dataclasses import replace
+
+    from optimizer.search import fill
+    from optimizer.search.fill import FIRST_REACH
+
+    pr = replace(problem(tiny), required=3)
+    blind = PocketFill(accept=raised_check, draws=0, checks=10, patience=1)
+    anywhere = blind.sweeping().run(pr, None, np.random.default_rng(1))
+    best = anywhere.build.poses[anywhere.build.order[0]].position[:2]
+    # A point of the mound far from where a whole sweep places its first block.
+    corners = [np.array([x, y]) for x in (-2.5, 2.5) for y in (0.5, tiny.length - 0.5)]
+    there = max(corners, key=lambda p: np.hypot(*(p - best)))
+    reach = FIRST_REACH * tiny.block.bounding_radius
+    assert np.hypot(*(there - best)) > reach + 0.5, "the test needs a point out of the first block's reach"
+    first = blind.sweeping(first=np.array([there])).run(pr, None, np.random.default_rng(1))
+    assert len(first.build) == 3 and first.stats.ended == "count"
+    placed = first.build.poses[first.build.order[0]].position[:2]
+    assert np.hypot(*(placed - there)) <= reach + 0.5  # a settle moves a block a little
+    assert_valid(tiny, first.build)
+    # Where what is swept first is too small to hold the count, the rest of the mound is swept
+    # for the others.
+    monkeypatch.setattr(fill, "FIRST_REACH", 0.2)
+    narrow = blind.sweeping(first=np.array([there])).run(pr, None, np.random.default_rng(1))
+    assert len(narrow.build) == 3 and narrow.stats.ended == "count"
+    assert_valid(tiny, narrow.build)
+
+
+def test_the_blocks_a_confirming_settle_took_out_are_found_where_they_stood(tiny):
+    """``taken_out``: the blocks of the layout before the settle that the layout after it has
+    nothing near; the ones the settle only moved a few centimetres are not among them."""
+    from geometry.pose import Pose
+    from optimizer.api import taken_out
+
+    rest = tiny.block.rest_poses[0]
+    before, after = Build(tiny), Build(tiny)
+    spots = [(-1.5, 1.0), (1.5, 1.0), (-1.5, 3.0), (1.5, 3.0)]
+    for x, y in spots:
+        before.place_at(Pose(np.array([x, y, rest.centroid_height]), rest.quaternion))
+    for x, y in spots[:2]:  # the first two stay, moved by 3 cm
+        after.place_at(Pose(np.array([x + 0.03, y, rest.centroid_height]), rest.quaternion))
+    assert np.allclose(sorted(map(tuple, taken_out(before, after))), sorted(spots[2:]))
+    assert len(taken_out(before, before)) == 0
+    assert np.allclose(sorted(map(tuple, taken_out(before, Build(tiny)))), sorted(spots))
 
 
 @pytest.mark.parametrize("name", ["mini", *(str(ROOT / "benchmarks" / "scenes" / f"{n}.toml")

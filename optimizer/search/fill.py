@@ -87,6 +87,10 @@ SWEEP_YAWS = 12
 SWEEP_CHUNK = 1024
 #: The share of the time left a sweep may take; the rest is for letting its candidates go.
 SWEEP_SHARE = 0.8
+#: How near the places where the settle took blocks out a refill sweeps first, in bounding
+#: radii: the block taken out stood within one of such a place, and a block there may rest on
+#: or beside what is one more radius away. Set by that reasoning, not tuned.
+FIRST_REACH = 2.0
 
 
 class PocketFill(Strategy):
@@ -109,21 +113,28 @@ class PocketFill(Strategy):
         over the fill window, in every hanging. It is thorough and slow (34 s for 72 Shake
         Blocks on one core), so ``optimize`` asks for it only in the refills after a
         confirming settle, where a layout that reached its count has lost a block or two.
+    first : array of (x, y), optional
+        With ``sweep``: where to sweep first, the nodes within ``FIRST_REACH`` bounding radii
+        of these points (where the settle took blocks out: there was room there), and then,
+        while the count is short, the rest of the window.
     """
 
     name = "fill"
 
     def __init__(self, accept: Callable[[Problem, Build, Candidate], Candidate | None],
-                 draws: int = 200, checks: int = 30, patience: int = 4, sweep: bool = False):
+                 draws: int = 200, checks: int = 30, patience: int = 4, sweep: bool = False,
+                 first: np.ndarray | None = None):
         self.accept = accept
         self.draws = draws
         self.checks = checks
         self.patience = patience
         self.sweep = sweep
+        self.first = None if first is None or not len(first) else np.asarray(first, float).reshape(-1, 2)
 
-    def sweeping(self) -> PocketFill:
-        """The same fill, going on with a sweep where its random rounds find no room."""
-        return PocketFill(self.accept, self.draws, self.checks, self.patience, sweep=True)
+    def sweeping(self, first: np.ndarray | None = None) -> PocketFill:
+        """The same fill, going on with a sweep where its random rounds find no room (first
+        near the points ``first``, where given)."""
+        return PocketFill(self.accept, self.draws, self.checks, self.patience, sweep=True, first=first)
 
     def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
         build = previous.build.copy() if previous is not None else Build(problem.scene)
@@ -177,18 +188,40 @@ class PocketFill(Strategy):
         """Blocks placed from sweeps of ``build`` (changed in place), one at a time, the best by
         :func:`optimizer.search.beam.gain` that comes to rest first. After each, only the
         places near it are swept again, and the others lowered again; those let go that did
-        not come to rest are not let go again. Returns the blocks placed, the drops, the
-        candidates let go, and whether it ended short of sweeping every node or on the clock.
+        not come to rest are not let go again. With ``first``, the nodes near those points are
+        swept first, and the others only while the count is still short. Returns the blocks
+        placed, the drops, the candidates let go, and whether it ended short of sweeping every
+        node or on the clock.
 
         Every candidate is let go among its neighbours (:func:`physics.settle_in`), on the bare
         foundation too, whatever ``accept`` does: the places a sweep finds are few, and on
         ``wall-rough`` seed 1 the best of them by gain was a block on the rubble at the toe,
         which, kept where it touched, tipped over in the settle of the whole layout."""
         window = fill_window(problem.scene)
+        reach = 2.0 * problem.scene.block.bounding_radius
+        placed = checks = drops = 0
+        whole = True
+        # Near where the settle took blocks out first, then, while the count is short, the rest
+        # of the window; or the whole window at once.
+        parts = [False] if self.first is None else [False, True]
+        around = (None if self.first is None
+                  else (self.first, FIRST_REACH * problem.scene.block.bounding_radius))
+        for beyond in parts:
+            if len(build) >= problem.required or problem.time_left() <= 0:
+                break
+            added, more, took, done = self._swept_part(problem, build, shapes, rng, window, reach,
+                                                       around, beyond)
+            placed, drops, checks, whole = placed + added, drops + more, checks + took, whole and done
+        return placed, drops, checks, not whole or problem.time_left() <= 0
+
+    def _swept_part(self, problem: Problem, build: Build, shapes: ShapeCache, rng: np.random.Generator,
+                    window, reach: float, around, beyond: bool) -> tuple[int, int, int, bool]:
+        """:meth:`_swept` over one part of the window (all of it where ``around`` is None):
+        the blocks placed, the drops, the candidates let go, and whether every node was swept."""
         # The sweep may take most of the time left (on wall-rough seed 1 it took 36 s of the
         # refill's 45), the rest is for letting its candidates go: the few it finds.
-        found, drops, whole = sweep(problem, build, shapes, window, rng,
-                                    stop=problem.now() + SWEEP_SHARE * problem.time_left())
+        found, drops, whole = sweep(problem, build, shapes, window, rng, around=around,
+                                    stop=problem.now() + SWEEP_SHARE * problem.time_left(), beyond=beyond)
         placed = checks = 0
         while found and len(build) < problem.required and problem.time_left() > 0:
             found.sort(key=lambda c: -gain(problem, c))
@@ -208,21 +241,21 @@ class PocketFill(Strategy):
             problem.tell(self.name, build, f"{len(build)} placed (sweep)")
             # Only drops within reach of the new block change: those are lowered again. The
             # ones let go before it did not come to rest, and are not let go again.
-            reach = 2.0 * problem.scene.block.bounding_radius
             at = rested.pose.position[:2]
             far = [c for c in found[tried:] if np.hypot(*(c.pose.position[:2] - at)) > reach]
             near, more, done = sweep(problem, build, shapes, window, rng, around=(at, reach))
             found, drops, whole = far + near, drops + more, whole and done
-        return placed, drops, checks, not whole or problem.time_left() <= 0
+        return placed, drops, checks, whole
 
 
 def sweep(problem: Problem, build: Build, shapes: ShapeCache,
           window: tuple[tuple[float, float], tuple[float, float]], rng: np.random.Generator,
-          around: tuple[np.ndarray, float] | None = None, stop: float | None = None
-          ) -> tuple[list[Candidate], int, bool]:
+          around: tuple[np.ndarray, float] | None = None, stop: float | None = None,
+          beyond: bool = False) -> tuple[list[Candidate], int, bool]:
     """Every drop of a grid over ``window``, ``SWEEP_STEP`` of H apart, in each hanging at
     ``SWEEP_YAWS`` yaws over its symmetry's period, that is valid as lowered (not loose);
-    with ``around`` (a point and a distance), only the nodes that near it.
+    with ``around`` (a point, or an array of them, and a distance), only the nodes within
+    that distance of one of them, or with ``beyond`` only the others.
 
     Random drops miss narrow pockets: on a ``wall-rough`` layout one block short after its
     settle, 3000 of them found no room, where this grid found 6 places that come to rest and
@@ -239,7 +272,11 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
     xs, ys = np.arange(x0, x1 + 1e-9, step), np.arange(y0, y1 + 1e-9, step)
     nodes = np.array(np.meshgrid(xs, ys, indexing="ij")).reshape(2, -1).T
     if around is not None:
-        nodes = nodes[np.hypot(*(nodes - around[0]).T) <= around[1]]
+        points = np.asarray(around[0], float).reshape(-1, 2)
+        near = np.zeros(len(nodes), bool)
+        for p in points:
+            near |= np.hypot(*(nodes - p).T) <= around[1]
+        nodes = nodes[~near if beyond else near]
     nodes = nodes[rng.permutation(len(nodes))]
     hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(shapes.block, problem.families, SWEEP_YAWS)]
     if not hung:  # only free turns: no hanging to sweep
