@@ -549,13 +549,12 @@ def test_a_sweep_near_a_point_lowers_only_the_nodes_that_near_it(tiny, coarse_sw
     assert poses(near) < poses(both)
 
 
-def test_a_refill_sweeps_first_where_the_settle_took_blocks_out(tiny, coarse_sweep, monkeypatch):
+def test_a_refill_sweeps_first_where_the_settle_took_blocks_out(tiny, coarse_sweep):
     """A sweep told where blocks were taken out places its first block there, though the best
     place of the whole mound by gain is elsewhere, and goes on over the rest of the mound while
     the count is short."""
     from dataclasses import replace
 
-    from optimizer.search import fill
     from optimizer.search.fill import FIRST_REACH
 
     pr = replace(problem(tiny), required=3)
@@ -572,12 +571,52 @@ def test_a_refill_sweeps_first_where_the_settle_took_blocks_out(tiny, coarse_swe
     placed = first.build.poses[first.build.order[0]].position[:2]
     assert np.hypot(*(placed - there)) <= reach + 0.5  # a settle moves a block a little
     assert_valid(tiny, first.build)
-    # Where what is swept first is too small to hold the count, the rest of the mound is swept
-    # for the others.
-    monkeypatch.setattr(fill, "FIRST_REACH", 0.2)
-    narrow = blind.sweeping(first=np.array([there])).run(pr, None, np.random.default_rng(1))
-    assert len(narrow.build) == 3 and narrow.stats.ended == "count"
-    assert_valid(tiny, narrow.build)
+    # Where what is swept first holds nothing (a point off the mound), the rest of the mound
+    # is swept for the count.
+    off = blind.sweeping(first=np.array([[100.0, 100.0]])).run(pr, None, np.random.default_rng(1))
+    assert len(off.build) == 3 and off.stats.ended == "count"
+    assert_valid(tiny, off.build)
+
+
+def test_a_sweep_in_two_parts_lets_go_what_the_first_did_not_and_not_again_what_failed(tiny, coarse_sweep,
+                                                                                        monkeypatch):
+    """The first part's candidates that were not let go compete in the second part, and none
+    that was let go without coming to rest is let go again."""
+    from dataclasses import replace
+
+    from optimizer.search import fill
+    from optimizer.search.build import fill_window
+    from optimizer.search.shapes import ShapeCache
+
+    pr = replace(problem(tiny), required=1)
+    let_go = []
+
+    def never(problem, build, c):  # nothing comes to rest: each part gives up after its best two
+        let_go.append(c)
+        return None
+
+    every, _, _ = fill.sweep(pr, Build(tiny), ShapeCache(tiny.block), fill_window(tiny),
+                             np.random.default_rng(0))
+    # First where the best places are, so that good ones are left over from the first part.
+    top = max(every, key=lambda c: fill.gain(pr, c)).pose.position[:2]
+    monkeypatch.setattr(fill, "settle_in", never)
+    blind = PocketFill(accept=raised_check, draws=0, checks=2, patience=1)
+    blind.sweeping(first=np.array([top])).run(pr, None, np.random.default_rng(1))
+    keys = [fill._key(c) for c in let_go]
+    assert len(keys) == len(set(keys)) == 4  # 2 in each part, none twice
+    # One part by itself: what is left over from before is let go (here where the part's own
+    # grid holds no node), and what failed before is not.
+    shapes, window = ShapeCache(tiny.block), fill_window(tiny)
+    reach = 2.0 * tiny.block.bounding_radius
+    let_go.clear()
+    blind._swept_part(pr, Build(tiny), shapes, np.random.default_rng(0), window, reach,
+                      (np.array([[100.0, 100.0]]), 1.0), False, [every[0]], set())
+    assert [fill._key(c) for c in let_go] == [fill._key(every[0])]
+    let_go.clear()
+    failed = {fill._key(c) for c in every[1:]}
+    blind._swept_part(pr, Build(tiny), shapes, np.random.default_rng(0), window, reach, None, False, [],
+                      failed)
+    assert [fill._key(c) for c in let_go] == [fill._key(every[0])]
 
 
 def test_the_blocks_a_confirming_settle_took_out_are_found_where_they_stood(tiny):

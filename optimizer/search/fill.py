@@ -206,22 +206,30 @@ class PocketFill(Strategy):
         parts = [False] if self.first is None else [False, True]
         around = (None if self.first is None
                   else (self.first, FIRST_REACH * problem.scene.block.bounding_radius))
+        # The first part's candidates not let go go on to the second, and those let go that did
+        # not come to rest are not let go again there.
+        left: list[Candidate] = []
+        failed: set[tuple] = set()
         for beyond in parts:
             if len(build) >= problem.required or problem.time_left() <= 0:
                 break
-            added, more, took, done = self._swept_part(problem, build, shapes, rng, window, reach,
-                                                       around, beyond)
+            added, more, took, done, left = self._swept_part(problem, build, shapes, rng, window, reach,
+                                                             around, beyond, left, failed)
             placed, drops, checks, whole = placed + added, drops + more, checks + took, whole and done
         return placed, drops, checks, not whole or problem.time_left() <= 0
 
     def _swept_part(self, problem: Problem, build: Build, shapes: ShapeCache, rng: np.random.Generator,
-                    window, reach: float, around, beyond: bool) -> tuple[int, int, int, bool]:
-        """:meth:`_swept` over one part of the window (all of it where ``around`` is None):
-        the blocks placed, the drops, the candidates let go, and whether every node was swept."""
+                    window, reach: float, around, beyond: bool, left: list[Candidate], failed: set[tuple]
+                    ) -> tuple[int, int, int, bool, list[Candidate]]:
+        """:meth:`_swept` over one part of the window (all of it where ``around`` is None), with
+        ``left`` (candidates not let go before) and without those ``failed`` (let go before, not
+        come to rest; added to as it goes): the blocks placed, the drops, the candidates let go,
+        whether every node was swept, and the candidates it did not let go."""
         # The sweep may take most of the time left (on wall-rough seed 1 it took 36 s of the
         # refill's 45), the rest is for letting its candidates go: the few it finds.
         found, drops, whole = sweep(problem, build, shapes, window, rng, around=around,
                                     stop=problem.now() + SWEEP_SHARE * problem.time_left(), beyond=beyond)
+        found = left + [c for c in found if _key(c) not in failed]
         placed = checks = 0
         while found and len(build) < problem.required and problem.time_left() > 0:
             found.sort(key=lambda c: -gain(problem, c))
@@ -234,8 +242,9 @@ class PocketFill(Strategy):
                 rested = settle_in(problem, build, c)
                 if rested is not None:
                     break
+                failed.add(_key(c))
             if rested is None:
-                break
+                return placed, drops, checks, whole, found[tried:]
             build.place(rested)
             placed += 1
             problem.tell(self.name, build, f"{len(build)} placed (sweep)")
@@ -245,7 +254,12 @@ class PocketFill(Strategy):
             far = [c for c in found[tried:] if np.hypot(*(c.pose.position[:2] - at)) > reach]
             near, more, done = sweep(problem, build, shapes, window, rng, around=(at, reach))
             found, drops, whole = far + near, drops + more, whole and done
-        return placed, drops, checks, whole
+        return placed, drops, checks, whole, found
+
+
+def _key(c: Candidate) -> tuple:
+    """A candidate's pose, to tell whether a sweep lowered it before."""
+    return tuple(np.round(np.concatenate([c.pose.position, c.pose.quaternion]), 6))
 
 
 def sweep(problem: Problem, build: Build, shapes: ShapeCache,
