@@ -769,7 +769,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
                        "added": len(again) - len(build) if gained else 0, **filled.stats.to_dict()})
         if not gained:
             break
-        before, (build, confirmation) = more, (again, check)
+        before, build, confirmation = more, again, check
         searched = max(searched, len(more))
     return _Attempt(build, phases, gap, confirmation.to_dict(), confirmation.stable, clock() - start,
                     searched=searched, search_seconds=search_seconds)

@@ -555,7 +555,7 @@ def test_a_refill_sweeps_first_where_the_settle_took_blocks_out(tiny, coarse_swe
     the count is short."""
     from dataclasses import replace
 
-    from optimizer.search.fill import FIRST_REACH
+    from optimizer.search.fill import NEAR_REACH
 
     pr = replace(problem(tiny), required=3)
     blind = PocketFill(accept=raised_check, draws=0, checks=10, patience=1)
@@ -564,7 +564,7 @@ def test_a_refill_sweeps_first_where_the_settle_took_blocks_out(tiny, coarse_swe
     # A point of the mound far from where a whole sweep places its first block.
     corners = [np.array([x, y]) for x in (-2.5, 2.5) for y in (0.5, tiny.length - 0.5)]
     there = max(corners, key=lambda p: np.hypot(*(p - best)))
-    reach = FIRST_REACH * tiny.block.bounding_radius
+    reach = NEAR_REACH * tiny.block.bounding_radius
     assert np.hypot(*(there - best)) > reach + 0.5, "the test needs a point out of the first block's reach"
     first = blind.sweeping(first=np.array([there])).run(pr, None, np.random.default_rng(1))
     assert len(first.build) == 3 and first.stats.ended == "count"
@@ -607,15 +607,13 @@ def test_a_sweep_in_two_parts_lets_go_what_the_first_did_not_and_not_again_what_
     # One part by itself: what is left over from before is let go (here where the part's own
     # grid holds no node), and what failed before is not.
     shapes, window = ShapeCache(tiny.block), fill_window(tiny)
-    reach = 2.0 * tiny.block.bounding_radius
     let_go.clear()
-    blind._swept_part(pr, Build(tiny), shapes, np.random.default_rng(0), window, reach,
+    blind._swept_part(pr, Build(tiny), shapes, np.random.default_rng(0), window,
                       (np.array([[100.0, 100.0]]), 1.0), False, [every[0]], set())
     assert [fill._key(c) for c in let_go] == [fill._key(every[0])]
     let_go.clear()
     failed = {fill._key(c) for c in every[1:]}
-    blind._swept_part(pr, Build(tiny), shapes, np.random.default_rng(0), window, reach, None, False, [],
-                      failed)
+    blind._swept_part(pr, Build(tiny), shapes, np.random.default_rng(0), window, None, False, [], failed)
     assert [fill._key(c) for c in let_go] == [fill._key(every[0])]
 
 

@@ -87,10 +87,10 @@ SWEEP_YAWS = 12
 SWEEP_CHUNK = 1024
 #: The share of the time left a sweep may take; the rest is for letting its candidates go.
 SWEEP_SHARE = 0.8
-#: How near the places where the settle took blocks out a refill sweeps first, in bounding
-#: radii: the block taken out stood within one of such a place, and a block there may rest on
-#: or beside what is one more radius away. Set by that reasoning, not tuned.
-FIRST_REACH = 2.0
+#: How near a place a sweep lowers first, in bounding radii: after a block is placed there, and
+#: where the settle took blocks out. A block within one radius of the place touches what stood
+#: there, and may rest on or beside what is one more radius away. Set by that reasoning, not tuned.
+NEAR_REACH = 2.0
 
 
 class PocketFill(Strategy):
@@ -114,7 +114,7 @@ class PocketFill(Strategy):
         Blocks on one core), so ``optimize`` asks for it only in the refills after a
         confirming settle, where a layout that reached its count has lost a block or two.
     first : array of (x, y), optional
-        With ``sweep``: where to sweep first, the nodes within ``FIRST_REACH`` bounding radii
+        With ``sweep``: where to sweep first, the nodes within ``NEAR_REACH`` bounding radii
         of these points (where the settle took blocks out: there was room there), and then,
         while the count is short, the rest of the window.
     """
@@ -198,14 +198,12 @@ class PocketFill(Strategy):
         ``wall-rough`` seed 1 the best of them by gain was a block on the rubble at the toe,
         which, kept where it touched, tipped over in the settle of the whole layout."""
         window = fill_window(problem.scene)
-        reach = 2.0 * problem.scene.block.bounding_radius
         placed = checks = drops = 0
         whole = True
         # Near where the settle took blocks out first, then, while the count is short, the rest
         # of the window; or the whole window at once.
         parts = [False] if self.first is None else [False, True]
-        around = (None if self.first is None
-                  else (self.first, FIRST_REACH * problem.scene.block.bounding_radius))
+        around = None if self.first is None else (self.first, near_reach(problem))
         # The first part's candidates not let go go on to the second, and those let go that did
         # not come to rest are not let go again there.
         left: list[Candidate] = []
@@ -213,13 +211,13 @@ class PocketFill(Strategy):
         for beyond in parts:
             if len(build) >= problem.required or problem.time_left() <= 0:
                 break
-            added, more, took, done, left = self._swept_part(problem, build, shapes, rng, window, reach,
+            added, more, took, done, left = self._swept_part(problem, build, shapes, rng, window,
                                                              around, beyond, left, failed)
             placed, drops, checks, whole = placed + added, drops + more, checks + took, whole and done
         return placed, drops, checks, not whole or problem.time_left() <= 0
 
     def _swept_part(self, problem: Problem, build: Build, shapes: ShapeCache, rng: np.random.Generator,
-                    window, reach: float, around, beyond: bool, left: list[Candidate], failed: set[tuple]
+                    window, around, beyond: bool, left: list[Candidate], failed: set[tuple]
                     ) -> tuple[int, int, int, bool, list[Candidate]]:
         """:meth:`_swept` over one part of the window (all of it where ``around`` is None), with
         ``left`` (candidates not let go before) and without those ``failed`` (let go before, not
@@ -229,7 +227,7 @@ class PocketFill(Strategy):
         # refill's 45), the rest is for letting its candidates go: the few it finds.
         found, drops, whole = sweep(problem, build, shapes, window, rng, around=around,
                                     stop=problem.now() + SWEEP_SHARE * problem.time_left(), beyond=beyond)
-        found = left + [c for c in found if _key(c) not in failed]
+        found = left + ([c for c in found if _key(c) not in failed] if failed else found)
         placed = checks = 0
         while found and len(build) < problem.required and problem.time_left() > 0:
             found.sort(key=lambda c: -gain(problem, c))
@@ -250,11 +248,16 @@ class PocketFill(Strategy):
             problem.tell(self.name, build, f"{len(build)} placed (sweep)")
             # Only drops within reach of the new block change: those are lowered again. The
             # ones let go before it did not come to rest, and are not let go again.
-            at = rested.pose.position[:2]
+            at, reach = rested.pose.position[:2], near_reach(problem)
             far = [c for c in found[tried:] if np.hypot(*(c.pose.position[:2] - at)) > reach]
             near, more, done = sweep(problem, build, shapes, window, rng, around=(at, reach))
             found, drops, whole = far + near, drops + more, whole and done
         return placed, drops, checks, whole, found
+
+
+def near_reach(problem: Problem) -> float:
+    """``NEAR_REACH`` in metres, for the scene's block."""
+    return NEAR_REACH * problem.scene.block.bounding_radius
 
 
 def _key(c: Candidate) -> tuple:
