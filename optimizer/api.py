@@ -70,7 +70,7 @@ from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, lattice_for
-from .search.physics import confirm, judged, raised_check, settling_by, stands, verdict
+from .search.physics import confirm, judged, raised_check, settled_layout, settling_by, stands, verdict
 from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
 from .search.shapes import ShapeCache
 from .search.sites import spread_to_count
@@ -913,7 +913,10 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                 new.phases.append(phase)
             adopted = trimmed is not new
             if adopted:
-                tried[-1] = new = replace(trimmed, coverage=reports[-1])
+                # Taken where its settle left it, the blocks have moved: measured again (None where
+                # no time was left, which is said below).
+                again = problem.coverage(trimmed.build.placed()) if phase.get("adopted") else reports[-1]
+                tried[-1] = new = replace(trimmed, coverage=again)
             trimmed_note = _trim_words(phase, adopted)
     if not new.on_target(problem):
         return chosen, (f"{what} came to {new.build.porosity.percent:.2f}% porosity{trimmed_note}, "
@@ -929,14 +932,15 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     return len(tried) - 1, f"the layout is that of {what}{trimmed_note}; without them {bare:.1f}% was bare"
 
 
-def _trim_words(phase: dict[str, Any] | None, adopted: bool) -> str:
-    """What the trim of the attempt with rows came to (``adopted``: the trimmed layout replaced
+def _trim_words(phase: dict[str, Any] | None, kept: bool) -> str:
+    """What the trim of the attempt with rows came to (``kept``: the trimmed layout replaced
     it), for :func:`covered_attempt`'s words."""
     if phase is None:
         return "; no time was left to move blocks into the design prism"
-    if adopted:
+    if kept:
+        where = ", and it stood where its settle left it" if phase.get("adopted") else ""
         return (f" ({phase['moved']} of its blocks moved into the design prism took it from "
-                f"{phase['porosity_before_percent']:.2f}%)")
+                f"{phase['porosity_before_percent']:.2f}%{where})")
     # Made again (TRIM_TRIES), the phase's figures are the last trim's: the ones before did not stand.
     twice = phase.get("tries", 1) > 1
     again = "; its first trim did not stand, and in a second" if twice else ";"
@@ -987,6 +991,13 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     if kept is attempt:
         phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,
                      bare_share_percent=attempt.coverage.bare_share_percent)
+    elif phase.get("adopted"):  # written where the settle left it: its own figures
+        if not kept.coverage.better_than(attempt.coverage):
+            # The moves' gain lost where the blocks came to rest: as if it had not stood.
+            kept = attempt
+            phase.update(stood=False, adopted=False)
+        phase.update(blocks=len(kept.build), porosity_percent=kept.build.porosity.percent,
+                     bare_share_percent=kept.coverage.bare_share_percent)
     phase["seconds"] = clock() - t0
     return kept, phase
 
@@ -1005,8 +1016,8 @@ def repair_once(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     return repaired, phase
 
 
-#: Trims at most for one attempt (:func:`trim_repair`): one, and one more from the untrimmed
-#: layout where the trimmed one did not stand.
+#: Trims at most for one attempt (:func:`trim_repair`): one, and one more, from the untrimmed
+#: layout where the trimmed one did not stand, else from the trimmed one if it is still over.
 TRIM_TRIES = 2
 
 
@@ -1020,13 +1031,17 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     coverage attempt's: meet as many coverage aims as before the trim, and
     then only cover better than the layout it would replace). The trimmed layout, nearer
     the window if not within it, is kept only if it stands when settled again
-    (:func:`_settled_again`). Where it does not, and that trim's time is left before the
-    trim's own deadline and, with a settle's reserve, before ``end``, the untrimmed layout is
-    trimmed once more with new drops, up to ``TRIM_TRIES`` trims. (On ``mini``
-    seed 1 the attempt with toe rows, at 57.06 %, was trimmed to 57.00 % and did not stand,
-    and was not kept; trimmed once more on the same random stream it stood at 56.97 %.)
-    Returns the attempt to keep and the ``trim`` phase (None where nothing was tried), which
-    says how many trims were made (``tries``).
+    (:func:`_settled_again`, which takes it where that settle left it if it stands so). Where
+    it does not, and that trim's time is left before the trim's own deadline and, with a
+    settle's reserve, before ``end``, the untrimmed layout is trimmed once more with new
+    drops, up to ``TRIM_TRIES`` trims. (On ``mini`` seed 1 the attempt with toe rows, at
+    57.06 %, was trimmed to 57.00 % and did not stand, and was not kept; trimmed once more on
+    the same random stream it stood at 56.97 %.) Where it stands but is still over its
+    window, it is the layout trimmed the next time: on ``mini-rough`` (seed 1, the attempt
+    with toe rows) a first trim stood at 57.15 %, over the window, and until 2026-12-06 the
+    attempt was then given up. Returns the attempt to keep and the ``trim`` phase (None where
+    nothing was tried), which says how many trims were made (``tries``), and of the trims
+    kept, from the untrimmed layout on, how many blocks they moved (else the last trim's).
     """
     clock, scene = problem.clock, problem.scene
     if not attempt.reached(problem) or attempt.stable is not True or over(problem, attempt.build) <= 0:
@@ -1037,19 +1052,33 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
         return attempt, None
     t0 = clock()
     phase: dict[str, Any] = {"strategy": "trim", "attempt": number, "seconds": 0.0, "tries": 0}
-    kept = attempt
+    kept, figures = attempt, None
     for _ in range(TRIM_TRIES):
+        base = kept  # the untrimmed attempt, or a trim that stood but is still over its window
         t1 = clock()
-        trimmed, stats = trim_moves(short, attempt.build, raised_check, rng, keeps)
+        trimmed, stats = trim_moves(short, base.build, raised_check, rng, keeps)
         took = clock() - t1
+        phase.pop("adopted", None)
         phase.update(blocks=len(trimmed), **stats.to_dict(), stood=None, tries=phase["tries"] + 1)
         if not stats.moved:
             break
         # Nearer the window if not within it: kept if it stands.
-        kept = _settled_again(problem, attempt, trimmed, rng, end, phase, coverage=None)
-        if (kept is not attempt or phase["stood"] is not False or clock() + took > short.deadline
+        after = _settled_again(problem, base, trimmed, rng, end, phase, coverage=None)
+        if after is not base:
+            moved = stats.moved + (figures["moved"] if figures else 0)
+            kept, figures = after, {
+                "blocks": len(after.build), "moved": moved,
+                "tried": stats.tried + (figures["tried"] if figures else 0),
+                "porosity_before_percent": attempt.build.porosity.percent,
+                "porosity_percent": after.build.porosity.percent, "stood": True,
+                **({"adopted": True} if phase.get("adopted") else {})}
+        if ((after is not base and over(problem, kept.build) <= 0) or phase["stood"] is None
+                or clock() + took > short.deadline
                 or clock() + took + settle_reserve(scene, meter=problem.meter) > end):
-            break  # kept, not settled, or no time for another trim and its settle
+            break  # within its window, not settled, or no time for another trim and its settle
+    if figures is not None:  # the trims kept, from the untrimmed attempt on
+        phase.pop("adopted", None)
+        phase.update(figures)
     phase["seconds"] = clock() - t0
     return kept, phase
 
@@ -1069,7 +1098,16 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
                    phase: dict[str, Any], **changes: Any) -> _Attempt:
     """``attempt`` with ``build`` (and ``changes``) if that stands when settled again
     (:func:`physics.verdict`) within a settle's reserve before ``end``; else ``attempt``.
-    Records in ``phase["stood"]`` whether it stood (None if there was no time)."""
+
+    Where it does not stand and another settle's reserve is left, it is taken where that
+    settle left it (:func:`physics.settled_layout`, as :func:`physics.confirm` takes every
+    layout that fails): kept if every block is still in it, valid, it stands then, and its
+    porosity is no further over its window than ``build``'s. Blocks that crept or slid have
+    come to rest, and a layout often stands so: on ``mini-rough`` (seed 1, the attempt with
+    toe rows) a trim that failed at 57.25 % stood so at 57.15 % with all 75 blocks. Its
+    coverage, if ``changes`` has one, is measured again (the blocks have moved), and
+    ``phase["adopted"]`` says so. Records in ``phase["stood"]`` whether it stood (None if
+    there was no time)."""
     clock = problem.clock
     if clock() + settle_reserve(problem.scene, meter=problem.meter) > end:
         return attempt
@@ -1079,6 +1117,20 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     except Stopped:
         return attempt  # it ran past the end: not known to stand (``stood`` stays None)
     phase["stood"] = bool(result.stable)
+    if not result.stable and not result.diverged and \
+            clock() + settle_reserve(problem.scene, meter=problem.meter) <= end:
+        try:
+            after, again = settled_layout(settling_by(problem, end), build, result, rng)
+        except Stopped:
+            return attempt  # not known to stand where the settle left it
+        if len(after) == len(build) and again.stable and over(problem, after) <= over(problem, build) + 1e-9:
+            measure = changes.get("coverage") is not None
+            cover = problem.coverage(after.placed()) if measure else None
+            if not measure or cover is not None:  # else no time was left to measure it
+                build, result = after, again
+                phase.update(stood=True, adopted=True)
+                if measure:
+                    changes["coverage"] = cover
     if not result.stable:
         return attempt
     settle = {**attempt.settle, "stable": True, "max_displacement_m": result.max_displacement_m,

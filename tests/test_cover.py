@@ -197,3 +197,66 @@ def test_the_moves_end_in_time_for_the_settle_that_the_timed_settles_ask_for(min
     assert phase is not None and phase["moved"] > 0, "moves must be made for the test to mean anything"
     assert phase["stood"] is not None, f"moves ended at {phase['seconds']:.1f} s, too late to settle them"
     assert clock() <= end
+
+
+def _failing_once(monkeypatch, api):
+    """``api.verdict`` as it is, but its first answer turned to "does not stand": a stand-in for a
+    moved layout that fails its settle. The layout where that settle left the blocks is then
+    judged by the real verdict."""
+    from dataclasses import replace
+
+    real, calls = api.verdict, []
+
+    def verdict(*args, **kwargs):
+        result = real(*args, **kwargs)
+        calls.append(result)
+        return replace(result, stable=False) if len(calls) == 1 else result
+
+    monkeypatch.setattr(api, "verdict", verdict)
+    monkeypatch.setattr("optimizer.search.physics.verdict", verdict)  # settled_layout's own
+    return calls
+
+
+def test_moves_that_fail_their_settle_are_taken_where_it_left_them_if_they_stand_so(mini_reference,
+                                                                                   monkeypatch):
+    """A moved layout that fails its settle is taken where that settle left the blocks, as
+    ``confirm`` takes any layout, if every block is still in it and it stands so; its coverage is
+    measured again there, and the phase gives the figures of the layout written."""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 1)
+    calls = _failing_once(monkeypatch, api)
+    pr = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.cover_repair(pr, attempt, np.random.default_rng(1), 1, pr.deadline + 30.0)
+    assert phase["moved"] == 1 and len(calls) == 2
+    assert phase["adopted"] is True and phase["stood"] is True and kept is not attempt
+    assert len(kept.build) == len(build)
+    again = coverage(scene, kept.build.placed())
+    assert kept.coverage.bare_share_percent == pytest.approx(again.bare_share_percent, abs=1e-9)
+    assert phase["bare_share_percent"] == kept.coverage.bare_share_percent
+    assert kept.coverage.better_than(attempt.coverage)
+    assert phase["porosity_percent"] == kept.build.porosity.percent
+    report = check_layout(scene, kept.build.placed())
+    assert not report.collisions and not report.out_of_tolerance
+
+
+def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypatch):
+    """Where the layout the failed settle left covers no better than before the moves (here the
+    settle is made to leave the blocks where they stood before the moves), the attempt is kept
+    as it was, with its own figures."""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 1)
+    _failing_once(monkeypatch, api)
+    monkeypatch.setattr(api, "settled_layout", lambda problem, moved, result, rng: (
+        build.copy(), api.verdict(problem, build.placed(), rng)))
+    pr = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.cover_repair(pr, attempt, np.random.default_rng(1), 1, pr.deadline + 30.0)
+    assert phase["moved"] == 1 and phase["adopted"] is False and phase["stood"] is False
+    assert kept is attempt
+    assert phase["bare_share_percent"] == attempt.coverage.bare_share_percent
+    assert phase["porosity_percent"] == build.porosity.percent

@@ -102,12 +102,45 @@ def test_a_trim_that_ends_short_of_the_window_is_kept_if_it_stands(rough, monkey
     attempt may then bring the porosity into the window."""
     scene, build = rough
     monkeypatch.setattr(trim, "MOVES", 1)
+    monkeypatch.setattr(api, "TRIM_TRIES", 1)
     p = problem(scene, seconds=120.0)
     attempt = api._Attempt(build, [], {}, {"stable": True}, True)
     kept, phase = api.trim_repair(p, attempt, np.random.default_rng(1), 1, p.deadline + 30.0)
     assert phase["moved"] == 1 and phase["stood"] is True and kept is not attempt
     assert trim.over(p, kept.build) > 0 and kept.build.porosity.percent < build.porosity.percent
     assert kept.key(p) > attempt.key(p) and not kept.on_target(p)
+
+
+def _moved(before: Build, after: Build) -> set[int]:
+    return {k for k in before.order if k not in after.poses
+            or not np.array_equal(after.poses[k].position, before.poses[k].position)}
+
+
+def test_a_trim_that_stands_still_over_its_window_is_trimmed_again_from_where_it_stands(rough, monkeypatch):
+    """The second trim starts from the first, where that stood but is still over the window, not
+    from the untrimmed layout: its moves add to the first's, and the phase counts both. (Until
+    2026-12-06 the attempt was kept at the first trim's porosity, over its window.)"""
+    scene, build = rough
+    monkeypatch.setattr(trim, "MOVES", 1)
+    starts = []
+    moves = trim.trim_moves
+
+    def watched(problem, given, *args, **kwargs):
+        starts.append(given)
+        return moves(problem, given, *args, **kwargs)
+
+    monkeypatch.setattr(api, "trim_moves", watched)
+    p = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.trim_repair(p, attempt, np.random.default_rng(1), 1, p.deadline + 30.0)
+    assert phase["tries"] == 2 and len(starts) == 2
+    assert starts[0] is build and starts[1] is not build
+    first = _moved(build, starts[1])
+    assert len(first) == 1, "the second trim starts from the first one's layout"
+    assert phase["stood"] is True and phase["moved"] == 2 and kept is not attempt
+    assert len(_moved(build, kept.build)) >= 2  # a block the first placed may itself be moved
+    assert phase["porosity_before_percent"] == build.porosity.percent
+    assert phase["porosity_percent"] == kept.build.porosity.percent < starts[1].porosity.percent
 
 
 def test_what_came_of_the_trim_in_words():
@@ -160,6 +193,8 @@ def test_a_trim_that_does_not_stand_is_made_again(monkeypatch):
         return kept
 
     monkeypatch.setattr(api, "_settled_again", watched)
+    # Where the settle leaves it, this trim stands (the test below): here it does not either.
+    monkeypatch.setattr(api, "settled_layout", lambda problem, build, result, rng: (build, result))
     p = problem(scene, seconds=120.0)
     attempt = api._Attempt(build, [], {}, {"stable": True}, True)
     kept, phase = api.trim_repair(p, attempt, np.random.default_rng(15), 1, p.deadline + 30.0)
@@ -167,6 +202,34 @@ def test_a_trim_that_does_not_stand_is_made_again(monkeypatch):
     assert phase["stood"] is True and kept is not attempt and kept.stable is True
     assert kept.on_target(p) and not attempt.on_target(p)
     assert attempt.build is build  # the attempt keeps its own layout
+
+
+def test_a_trim_that_does_not_stand_is_taken_where_its_settle_left_it_if_it_stands_so(monkeypatch):
+    """The same trim as above, on the same random stream: its verdict fails, and the layout where
+    that settle left the blocks, every one of them still in it, stands and is within the window.
+    It is kept so, in one trim, with each block where the settle left it: as ``confirm`` takes a
+    layout that fails. (Until 2026-12-06 it was dropped and the trim made again.)"""
+    scene = load_scene("mini")
+    build = _build(scene, ROWS)
+    verdicts = []
+    settled_again = api._settled_again
+
+    def watched(problem, attempt, trimmed, rng, end, phase, **changes):
+        verdicts.append(trimmed)
+        return settled_again(problem, attempt, trimmed, rng, end, phase, **changes)
+
+    monkeypatch.setattr(api, "_settled_again", watched)
+    p = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.trim_repair(p, attempt, np.random.default_rng(15), 1, p.deadline + 30.0)
+    assert phase["tries"] == 1 and phase["stood"] is True and phase["adopted"] is True
+    trimmed = verdicts[0]
+    assert kept is not attempt and kept.build is not trimmed and len(kept.build) == len(trimmed)
+    assert len(_moved(trimmed, kept.build)) > len(_moved(build, trimmed)), "the settle moved more blocks"
+    assert kept.on_target(p) and phase["porosity_percent"] == kept.build.porosity.percent
+    report = check_layout(scene, kept.build.placed())
+    assert not report.collisions and not report.out_of_tolerance
+    assert api._trim_words(phase, True).endswith("and it stood where its settle left it)")
 
 
 def test_what_came_of_a_trim_made_twice_in_words():
