@@ -708,6 +708,44 @@ def test_an_all_or_nothing_attempt_left_short_is_not_settled(tiny):
     assert not unsettled.reached(short)
 
 
+def test_the_refill_sweeps_first_where_the_confirming_settle_took_blocks_out(tiny, monkeypatch):
+    """``_attempt`` tells the refill's sweep where the blocks stood that the settle confirming a
+    search at its count took out (``taken_out``). The settle is a stand-in here that takes out
+    the last block laid, then confirms what is left with the real one; the sweep is asked
+    first at that block's place, and only there."""
+    import optimizer.api as api
+    from optimizer.search.fill import PocketFill
+    from optimizer.search.physics import raised_check
+
+    pr = replace(problem(tiny), required=5)
+    out: list[np.ndarray] = []
+    real_confirm = api.confirm
+
+    def confirm(problem_, build, rng, origin=None, end=None, whole=False):
+        if not out:  # the first confirmation: the search's layout
+            k = build.order[-1]
+            out.append(build.poses[k].position[:2].copy())
+            build = build.copy()
+            build.remove(k)
+        return real_confirm(problem_, build, rng, origin, end, whole)
+
+    asked: list[np.ndarray | None] = []
+    real_sweeping = PocketFill.sweeping
+
+    def sweeping(self, first=None):
+        asked.append(first)
+        return real_sweeping(self, first=first)
+
+    monkeypatch.setattr(api, "confirm", confirm)
+    monkeypatch.setattr(PocketFill, "sweeping", sweeping)
+    strategies = [BeamSearch(restarts=1, origins=3), PocketFill(accept=raised_check, draws=60, checks=10)]
+    attempt = _attempt(pr, strategies, tiny, (), np.random.default_rng(1), True, pr.deadline, 1)
+    assert attempt.searched == pr.required and out, "the search must reach its count for the test to mean anything"
+    assert asked and asked[0] is not None
+    np.testing.assert_allclose(asked[0], [out[0]])
+    assert any(p["strategy"] == "refill" for p in attempt.phases)
+
+
 @pytest.mark.parametrize("stands, searches", [(True, 1), (False, 3)])
 def test_beam_restarts_only_until_a_full_layout_stands(tiny, stands, searches):
     """The next origin is searched only while no full layout stands: results, not the clock,
