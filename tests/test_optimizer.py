@@ -740,7 +740,7 @@ def test_the_refill_sweeps_first_where_the_confirming_settle_took_blocks_out(tin
     monkeypatch.setattr(PocketFill, "sweeping", sweeping)
     strategies = [BeamSearch(restarts=1, origins=3), PocketFill(accept=raised_check, draws=60, checks=10)]
     attempt = _attempt(pr, strategies, tiny, (), np.random.default_rng(1), True, pr.deadline, 1)
-    assert attempt.searched == pr.required and out, "the search must reach its count for the test to mean anything"
+    assert attempt.searched == pr.required and out, "the search must reach its count for the test to mean it"
     assert asked and asked[0] is not None
     np.testing.assert_allclose(asked[0], [out[0]])
     assert any(p["strategy"] == "refill" for p in attempt.phases)
