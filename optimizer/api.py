@@ -892,14 +892,14 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             if new.coverage is not None:
                 trimmed_note = f" and covered no better ({new.coverage.bare_share_percent:.1f}% bare)"
         if new.coverage is not None and new.coverage.better_than(best.coverage):
-            reports: list[CoverageReport] = []
+            reports: list[tuple[Build, CoverageReport]] = []
 
             def better(aims: int) -> Callable[[Build], bool]:
                 def keep(build: Build) -> bool:
                     report = problem.coverage(build.placed())
                     if report is None or not report.better_than(best.coverage) or report.aims_met() < aims:
                         return False
-                    reports.append(report)  # the last is the trimmed layout's
+                    reports.append((build, report))
                     return True
                 return keep
 
@@ -913,9 +913,12 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                 new.phases.append(phase)
             adopted = trimmed is not new
             if adopted:
-                # Taken where its settle left it, the blocks have moved: measured again (None where
-                # no time was left, which is said below).
-                again = problem.coverage(trimmed.build.placed()) if phase.get("adopted") else reports[-1]
+                # The report of the very layout kept: a second trim, from the first, may have been
+                # measured and not kept. Taken where its settle left it, the layout was never
+                # measured: it is now (None where no time was left, which is said below).
+                again = next((r for b, r in reversed(reports) if b is trimmed.build), None)
+                if again is None:
+                    again = problem.coverage(trimmed.build.placed())
                 tried[-1] = new = replace(trimmed, coverage=again)
             trimmed_note = _trim_words(phase, adopted)
     if not new.on_target(problem):
@@ -1071,7 +1074,7 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
                 "tried": stats.tried + (figures["tried"] if figures else 0),
                 "porosity_before_percent": attempt.build.porosity.percent,
                 "porosity_percent": after.build.porosity.percent, "stood": True,
-                **({"adopted": True} if phase.get("adopted") else {})}
+                **({"adopted": True} if phase.get("adopted") or (figures or {}).get("adopted") else {})}
         if ((after is not base and over(problem, kept.build) <= 0) or phase["stood"] is None
                 or clock() + took > short.deadline
                 or clock() + took + settle_reserve(scene, meter=problem.meter) > end):
@@ -1081,6 +1084,11 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
         phase.update(figures)
     phase["seconds"] = clock() - t0
     return kept, phase
+
+
+def off_window(problem: Problem, build: Build) -> float:
+    """How many points the build's porosity lies outside its window, either side (0 within it)."""
+    return max(0.0, abs(build.porosity.percent - problem.target) - TARGET_POINTS)
 
 
 def moves_until(problem: Problem, end: float, reserve: float) -> Problem:
@@ -1102,7 +1110,8 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     Where it does not stand and another settle's reserve is left, it is taken where that
     settle left it (:func:`physics.settled_layout`, as :func:`physics.confirm` takes every
     layout that fails): kept if every block is still in it, valid, it stands then, and its
-    porosity is no further over its window than ``build``'s. Blocks that crept or slid have
+    porosity is no further off its window (either side) than ``build``'s. Not where the
+    build has kept blocks (``--keep``): holding them takes one more settle. Blocks that crept or slid have
     come to rest, and a layout often stands so: on ``mini-rough`` (seed 1, the attempt with
     toe rows) a trim that failed at 57.25 % stood so at 57.15 % with all 75 blocks. Its
     coverage, if ``changes`` has one, is measured again (the blocks have moved), and
@@ -1117,13 +1126,15 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     except Stopped:
         return attempt  # it ran past the end: not known to stand (``stood`` stays None)
     phase["stood"] = bool(result.stable)
-    if not result.stable and not result.diverged and \
+    # Not with kept blocks: settled_layout then settles once more to hold them, past the reserve.
+    if not result.stable and not result.diverged and not build.kept and \
             clock() + settle_reserve(problem.scene, meter=problem.meter) <= end:
         try:
             after, again = settled_layout(settling_by(problem, end), build, result, rng)
         except Stopped:
             return attempt  # not known to stand where the settle left it
-        if len(after) == len(build) and again.stable and over(problem, after) <= over(problem, build) + 1e-9:
+        nearer = off_window(problem, after) <= off_window(problem, build) + 1e-9
+        if len(after) == len(build) and again.stable and nearer:
             measure = changes.get("coverage") is not None
             cover = problem.coverage(after.placed()) if measure else None
             if not measure or cover is not None:  # else no time was left to measure it

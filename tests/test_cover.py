@@ -260,3 +260,40 @@ def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypa
     assert kept is attempt
     assert phase["bare_share_percent"] == attempt.coverage.bare_share_percent
     assert phase["porosity_percent"] == build.porosity.percent
+
+
+def test_a_layout_with_kept_blocks_is_not_taken_where_a_failed_settle_left_it(monkeypatch):
+    """With kept blocks (``--keep``), holding them where they are takes one more settle than
+    the reserve allows for: a moved layout that fails is dropped as before, and the layout where
+    the settle left it is never made."""
+    import optimizer.api as api
+
+    scene = load_scene("mini")
+    placements = read_layout(REFERENCE).blocks
+    build = api.kept_build(scene, placements[:10])
+    for p in placements[10:]:
+        build.place_at(p.pose)
+    _failing_once(monkeypatch, api)
+    made = []
+    monkeypatch.setattr(api, "settled_layout", lambda *args: made.append(args))
+    pr = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    phase: dict = {}
+    kept = api._settled_again(pr, attempt, build.copy(), np.random.default_rng(1), pr.deadline + 30.0, phase)
+    assert kept is attempt and phase["stood"] is False and "adopted" not in phase and not made
+
+
+def test_how_far_off_its_window_a_layout_is_counts_both_sides(mini_reference):
+    """A layout taken where its settle left it must be no further off its window than the moved
+    one, below it as above it (``trim.over`` counts only above)."""
+    from dataclasses import replace
+
+    import optimizer.api as api
+    from optimizer.search.trim import over
+
+    scene, build = mini_reference
+    p = build.porosity.percent
+    assert api.off_window(replace(problem(scene), target=p), build) == 0.0
+    assert api.off_window(replace(problem(scene), target=p + 1.5), build) == pytest.approx(0.5)
+    assert api.off_window(replace(problem(scene), target=p - 1.5), build) == pytest.approx(0.5)
+    assert over(replace(problem(scene), target=p + 1.5), build) == 0.0  # what the check used before

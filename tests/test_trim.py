@@ -264,3 +264,24 @@ def test_the_trim_ends_in_time_for_the_settle_that_the_timed_settles_ask_for(mon
     assert phase is not None and phase["moved"] > 0, "moves must be made for the test to mean anything"
     assert phase["stood"] is not None, f"the trim ended at {phase['seconds']:.1f} s, too late to settle it"
     assert clock() <= end
+
+
+def test_a_trim_kept_as_moved_is_the_very_layout_its_caller_last_accepted(rough, monkeypatch):
+    """The coverage attempt finds the report of the trimmed layout it keeps by the layout itself,
+    among those its rule accepted: a trim kept as moved must be that object (a copy would be
+    measured again), and where a second trim was accepted and then fell, the kept one is still
+    the first's, not the last accepted."""
+    scene, build = rough
+    monkeypatch.setattr(trim, "MOVES", 1)
+    accepted: list[Build] = []
+
+    def record(candidate: Build) -> bool:
+        accepted.append(candidate)
+        return True
+
+    p = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.trim_repair(p, attempt, np.random.default_rng(1), 1, p.deadline + 30.0, [record])
+    assert phase["stood"] is True and kept is not attempt and len(accepted) >= 2
+    assert "adopted" not in phase, "kept as moved, for the test to mean anything"
+    assert any(b is kept.build for b in accepted)
