@@ -75,7 +75,7 @@ from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Proble
 from .search.shapes import ShapeCache
 from .search.sites import spread_to_count
 from .search.toe import ToeRows
-from .search.trim import over, trim_moves
+from .search.trim import off_window, over, trim_moves
 
 #: The default time limit (s): at least this, ``SECONDS_PER_BLOCK`` a required block above it,
 #: and at most ``MAX_DEFAULT_LIMIT`` (issue 24: up to 0.5 s a block, 20 minutes at most).
@@ -667,7 +667,7 @@ class _Attempt:
 
     def on_target(self, problem: Problem) -> bool:
         """Reached, and its porosity within ``TARGET_POINTS`` of the target."""
-        return self.reached(problem) and abs(self.build.porosity.percent - problem.target) <= TARGET_POINTS
+        return self.reached(problem) and off_window(problem, self.build) == 0.0
 
     def key(self, problem: Problem) -> tuple[bool, int, float]:
         """Better is larger: standing, then more blocks (up to the count), then porosity nearer the target."""
@@ -989,17 +989,13 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
              "porosity_percent": moved.porosity.percent, **stats.to_dict(), "stood": None}
     kept = attempt
     if stats.moved:
-        kept = _settled_again(problem, attempt, moved, rng, end, phase, coverage=after,
-                              unmoved=attempt.unmoved or attempt)
+        kept = _settled_again(problem, attempt, moved, rng, end, phase, than=attempt.coverage,
+                              coverage=after, unmoved=attempt.unmoved or attempt)
     if kept is attempt:
         phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,
                      bare_share_percent=attempt.coverage.bare_share_percent)
     elif phase.get("adopted"):  # written where the settle left it: its own figures
-        if not kept.coverage.better_than(attempt.coverage):
-            # The moves' gain lost where the blocks came to rest: as if it had not stood.
-            kept = attempt
-            phase.update(stood=False, adopted=False)
-        phase.update(blocks=len(kept.build), porosity_percent=kept.build.porosity.percent,
+        phase.update(porosity_percent=kept.build.porosity.percent,
                      bare_share_percent=kept.coverage.bare_share_percent)
     phase["seconds"] = clock() - t0
     return kept, phase
@@ -1075,11 +1071,6 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     return kept, phase
 
 
-def off_window(problem: Problem, build: Build) -> float:
-    """How many points the build's porosity lies outside its window, either side (0 within it)."""
-    return max(0.0, abs(build.porosity.percent - problem.target) - TARGET_POINTS)
-
-
 def moves_until(problem: Problem, end: float, reserve: float) -> Problem:
     """``problem`` with its deadline where a repair's moves must end (``trim_repair``,
     ``cover_repair``): in time for the settle that confirms them before ``end``, by ``reserve``
@@ -1092,7 +1083,7 @@ def moves_until(problem: Problem, end: float, reserve: float) -> Problem:
 
 
 def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.random.Generator, end: float,
-                   phase: dict[str, Any], **changes: Any) -> _Attempt:
+                   phase: dict[str, Any], than: CoverageReport | None = None, **changes: Any) -> _Attempt:
     """``attempt`` with ``build`` (and ``changes``) if that stands when settled again
     (:func:`physics.verdict`) within a settle's reserve before ``end``; else ``attempt``.
 
@@ -1103,9 +1094,10 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
     build has kept blocks (``--keep``): holding them takes one more settle. Blocks that crept or slid have
     come to rest, and a layout often stands so: on ``mini-rough`` (seed 1, the attempt with
     toe rows) a trim that failed at 57.25 % stood so at 57.15 % with all 75 blocks. Its
-    coverage, if ``changes`` has one, is measured again (the blocks have moved), and
-    ``phase["adopted"]`` says so. Records in ``phase["stood"]`` whether it stood (None if
-    there was no time)."""
+    coverage, if ``changes`` has one, is measured again (the blocks have moved), and must be
+    better than ``than`` where given (the covering moves' gain not lost where the blocks came
+    to rest); ``phase["adopted"]`` says it was so taken. Records in ``phase["stood"]`` whether
+    it stood (None if there was no time)."""
     clock = problem.clock
     if clock() + settle_reserve(problem.scene, meter=problem.meter) > end:
         return attempt
@@ -1126,7 +1118,8 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
         if len(after) == len(build) and again.stable and nearer:
             measure = changes.get("coverage") is not None
             cover = problem.coverage(after.placed()) if measure else None
-            if not measure or cover is not None:  # else no time was left to measure it
+            if not measure or (cover is not None  # else no time was left to measure it
+                               and (than is None or cover.better_than(than))):
                 build, result = after, again
                 phase.update(stood=True, adopted=True)
                 if measure:

@@ -290,9 +290,7 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
     nodes = np.array(np.meshgrid(xs, ys, indexing="ij")).reshape(2, -1).T
     if around is not None:
         points = np.asarray(around[0], float).reshape(-1, 2)
-        near = np.zeros(len(nodes), bool)
-        for p in points:
-            near |= np.hypot(*(nodes - p).T) <= around[1]
+        near = (np.linalg.norm(nodes[:, None, :] - points[None, :, :], axis=2) <= around[1]).any(axis=1)
         nodes = nodes[~near if beyond else near]
     nodes = nodes[rng.permutation(len(nodes))]
     hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(shapes.block, problem.families, SWEEP_YAWS)]

@@ -77,6 +77,11 @@ def over(problem: Problem, build: Build) -> float:
     return max(0.0, build.porosity.percent - problem.target - TARGET_POINTS)
 
 
+def off_window(problem: Problem, build: Build) -> float:
+    """How many points the build's porosity lies outside its window, either side (0 within it)."""
+    return max(0.0, abs(build.porosity.percent - problem.target) - TARGET_POINTS)
+
+
 Accept = Callable[[Problem, Build, Candidate], Candidate | None]
 Keep = Callable[[Build], bool]
 
