@@ -1117,7 +1117,9 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
         nearer = off_window(problem, after) <= off_window(problem, build) + 1e-9
         if len(after) == len(build) and again.stable and nearer:
             measure = changes.get("coverage") is not None
-            cover = problem.coverage(after.placed()) if measure else None
+            # Measured up to ``end``, not the search's deadline: the moves and two settles may
+            # have passed that, and the moves were then dropped for want of a measure.
+            cover = replace(problem, deadline=end).coverage(after.placed()) if measure else None
             if not measure or (cover is not None  # else no time was left to measure it
                                and (than is None or cover.better_than(than))):
                 build, result = after, again

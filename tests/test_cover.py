@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -240,6 +242,27 @@ def test_moves_that_fail_their_settle_are_taken_where_it_left_them_if_they_stand
     assert phase["porosity_percent"] == kept.build.porosity.percent
     report = check_layout(scene, kept.build.placed())
     assert not report.collisions and not report.out_of_tolerance
+
+
+def test_moves_taken_where_the_settle_left_them_are_measured_up_to_the_end_not_the_search_deadline(
+        mini_reference, monkeypatch):
+    """The moves and their settles often end past the search's deadline; the coverage of the
+    layout where the settle left the blocks is measured up to ``end`` all the same (measured up to
+    the search's deadline, it came back None and the layout was dropped)."""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    _failing_once(monkeypatch, api)
+    pr = problem(scene, seconds=-1.0)  # the search's deadline has passed
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True,
+                           coverage=coverage(scene, build.placed()))
+    moved = build.copy()
+    before = replace(attempt.coverage, bare_share_percent=100.0)  # any measure covers better
+    phase: dict = {}
+    kept = api._settled_again(pr, attempt, moved, np.random.default_rng(1), pr.clock() + 60.0, phase,
+                              than=before, coverage=attempt.coverage)
+    assert phase.get("adopted") is True and kept is not attempt
+    assert kept.coverage is not attempt.coverage and kept.coverage is not None
 
 
 def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypatch):
