@@ -170,6 +170,16 @@ def last_rows(stem: str) -> list[dict]:
         return list(csv.DictReader(f))
 
 
+def write_phases(stem: str, phases: dict[tuple[str, str, int], dict], keep: set[tuple[str, str]]) -> Path:
+    """``results/STEM-phases.json``: each run's settle and phases (``shoha optimize --json``), with
+    those of the scenes an ``--update`` kept from the last run."""
+    path = BENCH / "results" / f"{stem}-phases.json"
+    old = json.loads(path.read_text()) if path.is_file() else []
+    runs = [r for r in old if (r["method"], r["scene"]) in keep] + [phases[k] for k in sorted(phases)]
+    path.write_text(json.dumps(runs, indent=1) + "\n")
+    return path
+
+
 def run_label(machine: dict) -> str:
     """Which run wrote a row: the commit it measured and the day, as each row's ``run`` column has it."""
     return f"{machine.get('commit', '?')} on {machine.get('date', '?')[:10]}"
@@ -266,8 +276,13 @@ def main() -> None:
                        "ok": False}
             row["run"] = run_label(run.start)  # a row kept by a later --update keeps its own
             print(json.dumps(row), flush=True)
+            # What each run did, phase by phase: the table alone could not say why a seed moved.
+            phases[(method, scene, seed)] = {"method": method, "scene": scene, "seed": seed,
+                                             "run": row["run"], "settle": ran.get("settle"),
+                                             "phases": ran.get("phases")}
             return row
 
+        phases: dict[tuple[str, str, int], dict] = {}
         seeds = {"new": args.seeds, "old": args.old_seeds or args.seeds}
         todo = [(m, s, n) for m in args.methods for s in scenes for n in seeds[m]]
         ran = {(m, s) for m, s, _ in todo}
@@ -278,6 +293,7 @@ def main() -> None:
         rows = sorted(rows + reused, key=lambda r: (order.get((r["method"], r["scene"]), len(order)),
                                                     r["method"], r["scene"], int(r["seed"])))
     run.csv(stem, rows)
+    write_phases(stem, phases, keep={(r["method"], r["scene"]) for r in reused})
     run.figure(stem, chart(rows, "shoha optimize on the engineer's scenes, default limit, seeds "
                           + ", ".join(map(str, args.seeds))))
     run.done()
