@@ -255,3 +255,37 @@ def test_a_trim_kept_as_moved_is_the_very_layout_its_caller_last_accepted(rough)
     assert phase["stood"] is True and kept is not attempt and accepted
     assert "adopted" not in phase, "kept as moved, for the test to mean anything"
     assert any(b is kept.build for b in accepted)
+
+
+@pytest.mark.parametrize("stream", [1, 15])
+def test_the_coverage_attempt_keeps_the_report_of_the_very_layout_it_keeps(monkeypatch, stream):
+    """``covered_attempt`` end to end, its search a stand-in that gives the attempt with toe rows
+    of ``mini`` seed 1 (57.06 %, over its window): the trim is made under the coverage rules, and
+    the coverage kept with the trimmed attempt is that of the layout it keeps, whether that is the
+    layout as trimmed (its report found among those the rules measured) or where its failed settle
+    left it (measured again). Random stream 15 takes the second path, 1 the first."""
+    from dataclasses import replace
+
+    from geometry.coverage import coverage
+
+    scene = load_scene("mini")
+    rows = _build(scene, ROWS)
+    plain = _build(scene, ROOT / "tests" / "data" / "mini-reference.json")
+    p = problem(scene, seconds=150.0)
+    measured = coverage(scene, plain.placed())
+    best = api._Attempt(plain, [], {}, {"stable": True}, True, coverage=replace(
+        measured, bare_share_percent=100.0, max_bare_m=100.0))  # any layout covers better
+    monkeypatch.setattr(api, "_attempt", lambda *args, **kwargs: api._Attempt(
+        rows.copy(), [], {}, {"stable": True}, True, searched=len(rows)))
+    tried = [best]
+    chosen, words = api.covered_attempt(p, api.default_strategies(), tried, 0, np.random.default_rng(stream),
+                                        True, p.deadline + 30.0)
+    new = tried[-1]
+    trim_phase = next(ph for ph in new.phases if ph["strategy"] == "trim")
+    assert trim_phase["moved"] > 0 and trim_phase["stood"] is True, "a trim kept, for the test to mean anything"
+    assert chosen == 1 and new.on_target(p), words
+    assert new.coverage is not None
+    again = coverage(scene, new.build.placed())
+    assert new.coverage.bare_share_percent == pytest.approx(again.bare_share_percent, abs=1e-9)
+    assert new.coverage.max_bare_m == pytest.approx(again.max_bare_m, abs=1e-9)
+    assert trim_phase.get("adopted", False) is (stream == 15)
