@@ -889,6 +889,51 @@ def test_summary_says_when_porosity_misses_the_target():
     assert lines[1].startswith("the search placed") and lines[2].startswith("the mound is not covered")
 
 
+def test_summary_says_when_the_blocks_placed_hold_more_outside_than_the_count_may():
+    """A layout short of its count whose blocks already hold more volume outside the design prism
+    than the whole count may within the porosity window says that no completion of it reaches
+    both; one under that budget, a full one, or one with collisions (overlaps count as outside)
+    does not."""
+    from optimizer.api import OptimizeResult
+
+    short = OptimizeResult(layout=None, porosity_percent=58.2, blocks=65, required_blocks=75,
+                           target_porosity_percent=50.0, collisions=0, out_of_tolerance=0, stable=True,
+                           seconds=92.0, outside_design_prism_m3=19.7, outside_budget_m3=14.0)
+    assert short.summary().endswith(
+        "\nthe 65 blocks placed already hold 19.7 m³ outside the design prism, where all 75 may hold "
+        "at most 14.0 m³ with the porosity within 1 point of its target: no layout that keeps these "
+        "blocks where they are reaches both the count and the porosity")
+    for other in (replace(short, outside_design_prism_m3=13.9), replace(short, blocks=75),
+                  replace(short, collisions=2), replace(short, outside_budget_m3=None)):
+        assert "placed already hold" not in other.summary()
+
+
+def test_the_budget_outside_the_prism_is_what_the_count_holds_less_what_must_fill_it():
+    """``outside_budget``: the required blocks' volume less the share of the design prism that
+    must be filled at the top of the porosity window; a layout of the count with exactly that much
+    outside lies at the window's top."""
+    from geometry.scene import load_scene
+    from optimizer.api import outside_budget
+    from optimizer.search.problem import TARGET_POINTS
+
+    for name in ("mini", ROOT / "benchmarks" / "scenes" / "tetrapod-big.toml"):
+        scene = load_scene(name)
+        budget = outside_budget(scene)
+        inside = scene.required_blocks * scene.block.volume - budget
+        porosity = 100.0 * (1.0 - inside / scene.design_volume)
+        assert porosity == pytest.approx(scene.target_porosity + TARGET_POINTS, abs=1e-9)
+        assert 0 < budget < scene.required_blocks * scene.block.volume
+
+
+def test_optimize_gives_its_result_the_scene_s_budget(tiny):
+    """``optimize`` sets the budget its summary weighs from the scene it ran on."""
+    from optimizer.api import optimize, outside_budget
+
+    r = optimize(tiny, seed=1, time_limit=5.0, strategies=[BeamSearch(restarts=1, origins=1)],
+                 settle_layout=False, cover=False)
+    assert r.outside_budget_m3 == pytest.approx(outside_budget(tiny))
+
+
 def test_summary_says_why_a_layout_written_does_not_stand():
     """A verdict that fails on blocks not kept (no time was left to take them out) gets its own line."""
     from optimizer.api import OptimizeResult

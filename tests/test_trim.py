@@ -282,7 +282,7 @@ def test_the_coverage_attempt_keeps_the_report_of_the_very_layout_it_keeps(monke
                                         True, p.deadline + 30.0)
     new = tried[-1]
     trim_phase = next(ph for ph in new.phases if ph["strategy"] == "trim")
-    assert trim_phase["moved"] > 0 and trim_phase["stood"] is True, "a trim kept, for the test to mean anything"
+    assert trim_phase["moved"] > 0 and trim_phase["stood"] is True, "a trim kept, for the test to mean it"
     assert chosen == 1 and new.on_target(p), words
     assert new.coverage is not None
     again = coverage(scene, new.build.placed())
