@@ -23,7 +23,9 @@ Scenes held out of all tuning (``HELD_OUT``, ``benchmarks/scenes/held-out/``) ar
 run and reported apart (``--held-out``).
 
 Writes ``results/generality.{csv,json,png}`` (``generality-held-out.*`` for the
-held-out set). ``--methods new`` skips the old method; ``--scenes`` and
+held-out set), and each run's settle and phases in ``results/generality-phases.json``
+(``generality-held-out-phases.json``; rows an ``--update`` kept from a run before
+2026-12-06 have none). ``--methods new`` skips the old method; ``--scenes`` and
 ``--seeds`` narrow the run. ``--jobs 2``, the default, runs two optimizations at once, each on
 one core (``OMP_NUM_THREADS=1``; the search itself is single-threaded): on a
 2-core machine that halves the wall time and leaves each run the core it would

@@ -226,6 +226,10 @@ class OptimizeResult:
         :meth:`summary` (:func:`shortfall`); None where that is not known.
     coverage_left_out : bool
         The run did not measure the coverage: the time limit left no room for it.
+    outside_budget_m3 : float or None
+        The most block volume the required count may hold outside the design
+        prism with the porosity within its window (:func:`outside_budget`),
+        for :meth:`summary`; None where not known.
     kept : dict or None
         With ``keep``: how many blocks were kept, and the ids of those among
         them that collide, stick out of the tolerance zone or fail the settle
@@ -253,7 +257,7 @@ class OptimizeResult:
     searched: int | None = None
     shortfall: str | None = None
     coverage_left_out: bool = False
-    outside_budget_m3: float | None = None  # :func:`outside_budget`
+    outside_budget_m3: float | None = None
 
     @property
     def valid(self) -> bool:
@@ -317,10 +321,18 @@ class OptimizeResult:
         prism than the whole count may within the porosity window (:func:`outside_budget`): a line
         that says so. Blocks added never take volume from the prism's outside, so no layout that
         keeps these blocks where they are reaches both the count and the porosity. (Every tetrapod
-        scene that ends short of its count does: ``tetrapod-big``'s 65 of 75 hold 19-20 m³ outside,
-        where all 75 may hold 14.0.) Not where blocks collide: their overlaps count as outside."""
-        if (self.outside_budget_m3 is None or self.blocks >= self.required_blocks or self.collisions
-                or self.outside_design_prism_m3 <= self.outside_budget_m3):
+        scene that ends short of its count does: ``tetrapod-big``'s 65 of 75 hold 18.9-20.2 m³
+        outside, where all 75 may hold 14.0.) Not where blocks collide: the figure then counts their
+        overlaps too, and the words "outside the design prism" would not be right. A budget below
+        zero (a scene whose own ``required_blocks`` is under what its target asks) says instead
+        that the count cannot reach the porosity at all."""
+        if self.outside_budget_m3 is None or self.blocks >= self.required_blocks:
+            return ""
+        if self.outside_budget_m3 < 0:
+            return (f"\neven all {self.required_blocks} blocks wholly inside the design prism would "
+                    f"leave its porosity more than {TARGET_POINTS:g} point over the target: the "
+                    "required count is too small for the target porosity")
+        if self.collisions or self.outside_design_prism_m3 <= self.outside_budget_m3:
             return ""
         return (f"\nthe {self.blocks} blocks placed already hold {self.outside_design_prism_m3:.1f} m³ "
                 f"outside the design prism, where all {self.required_blocks} may hold at most "
@@ -591,8 +603,9 @@ def optimize(
 def outside_budget(scene: Scene) -> float:
     """The most volume (m³) the required count of blocks may hold outside the design prism with
     the porosity no more than ``TARGET_POINTS`` over its target: what they hold in all, less what
-    must fill the prism. With the count set by the target (``ceil((1 - target) V_design /
-    V_block)``), that is little: 1.8 blocks of ``tetrapod-big``'s 75, 2.4 % of their volume."""
+    must fill the prism. With the count set by the target (``ceil((1 - target / 100) V_design /
+    V_block)``, the target in percent), that is little: 1.8 blocks of ``tetrapod-big``'s 75, 2.4 %
+    of their volume. Below zero where a scene's own count is under what its target asks."""
     fill = 1.0 - (scene.target_porosity + TARGET_POINTS) / 100.0
     return scene.required_blocks * scene.block.volume - fill * scene.design_volume
 
@@ -946,15 +959,17 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                 # measured: it is now (None where no time was left, which is said below).
                 again = next((r for b, r in reversed(reports) if b is trimmed.build), None)
                 if again is None:
-                    again = problem.coverage(trimmed.build.placed())
+                    again = replace(problem, deadline=end).coverage(trimmed.build.placed())
                 tried[-1] = new = replace(trimmed, coverage=again)
             trimmed_note = _trim_words(phase, adopted)
     if not new.on_target(problem):
         return chosen, (f"{what} came to {new.build.porosity.percent:.2f}% porosity{trimmed_note}, "
                         "so it was not kept")
     if new.coverage is None:
-        if clock() + coverage_reserve(scene) <= problem.deadline:
-            new.coverage = problem.coverage(new.build.placed())
+        # Up to ``end``, not the search's deadline: the attempt's confirming settle, or its trim's,
+        # may have run past that, and a layout on target was then dropped unmeasured.
+        if clock() + coverage_reserve(scene) <= end:
+            new.coverage = replace(problem, deadline=end).coverage(new.build.placed())
         if new.coverage is None:
             return chosen, f"{what} reached the count, but no time was left to measure its coverage"
     if not new.coverage.better_than(best.coverage):

@@ -265,6 +265,33 @@ def test_moves_taken_where_the_settle_left_them_are_measured_up_to_the_end_not_t
     assert kept.coverage is not attempt.coverage and kept.coverage is not None
 
 
+def test_an_attempt_with_rows_settled_past_the_search_deadline_is_measured_and_kept(mini_reference,
+                                                                                  monkeypatch):
+    """The attempt with toe rows (here a stand-in that gives a layout on target) often ends its
+    confirming settle past the search's deadline, though before ``end``; its coverage is measured
+    all the same, and it is kept where it covers better. (Measured up to the search's deadline, it
+    came back None, and the attempt was dropped: "no time was left to measure its coverage".)"""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    now = [0.0]
+    pr = problem(scene, seconds=100.0, clock=lambda: now[0])
+    measured = coverage(scene, build.placed())
+    best = api._Attempt(build, [], {}, {"stable": True}, True, coverage=replace(
+        measured, bare_share_percent=100.0, max_bare_m=100.0))  # any layout covers better
+
+    def settled_late(*args, **kwargs):
+        now[0] = pr.deadline + 5.0  # its confirming settle ended past the search's deadline
+        return api._Attempt(build.copy(), [], {}, {"stable": True}, True, searched=len(build))
+
+    monkeypatch.setattr(api, "_attempt", settled_late)
+    tried = [best]
+    chosen, words = api.covered_attempt(pr, api.default_strategies(), tried, 0, np.random.default_rng(1),
+                                        True, pr.deadline + 20.0)
+    assert chosen == 1, words
+    assert tried[1].coverage.bare_share_percent == pytest.approx(measured.bare_share_percent, abs=1e-9)
+
+
 def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypatch):
     """Where the layout the failed settle left covers no better than before the moves (here the
     settle is made to leave the blocks where they stood before the moves), the attempt is kept
