@@ -571,7 +571,7 @@ def optimize(
     if measure:
         # Its estimate holds for blocks like the built-in ones; long slender blocks take far
         # longer, so the measure stops at the limit (+1 s) and is left out.
-        report_.coverage = replace(problem, deadline=start + time_limit + 1.0).coverage(layout.placed())
+        report_.coverage = problem.coverage(layout.placed(), until=start + time_limit + 1.0)
     return OptimizeResult(
         layout=layout,
         porosity_percent=report_.porosity_percent,
@@ -585,8 +585,7 @@ def optimize(
         settle=settle_info,
         phases=phases,
         gap=gap,
-        outside_design_prism_m3=max(0.0, report_.blocks * scene.block.volume
-                              - (1 - report_.porosity_percent / 100) * scene.design_volume),
+        outside_design_prism_m3=max(0.0, outside_prism(scene, report_.blocks, report_.porosity_percent)),
         coverage=report_.coverage.to_dict() if report_.coverage is not None else None,
         time_limit_s=time_limit,
         kept=kept_report(keep, report_, [layout.blocks[i].id for i in settle_info.get("unstable", [])])
@@ -606,8 +605,14 @@ def outside_budget(scene: Scene) -> float:
     must fill the prism. With the count set by the target (``ceil((1 - target / 100) V_design /
     V_block)``, the target in percent), that is little: 1.8 blocks of ``tetrapod-big``'s 75, 2.4 %
     of their volume. Below zero where a scene's own count is under what its target asks."""
-    fill = 1.0 - (scene.target_porosity + TARGET_POINTS) / 100.0
-    return scene.required_blocks * scene.block.volume - fill * scene.design_volume
+    return outside_prism(scene, scene.required_blocks, scene.target_porosity + TARGET_POINTS)
+
+
+def outside_prism(scene: Scene, blocks: int, porosity_percent: float) -> float:
+    """The volume (m³) ``blocks`` of the scene's block hold outside the design prism at that
+    porosity: their volume less what fills the prism (with blocks one inside another, their
+    overlap counts too)."""
+    return blocks * scene.block.volume - (1.0 - porosity_percent / 100.0) * scene.design_volume
 
 
 def single_layer(build: Build) -> tuple[float, float] | None:
@@ -959,7 +964,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
                 # measured: it is now (None where no time was left, which is said below).
                 again = next((r for b, r in reversed(reports) if b is trimmed.build), None)
                 if again is None:
-                    again = replace(problem, deadline=end).coverage(trimmed.build.placed())
+                    again = problem.coverage(trimmed.build.placed(), until=end)
                 tried[-1] = new = replace(trimmed, coverage=again)
             trimmed_note = _trim_words(phase, adopted)
     if not new.on_target(problem):
@@ -969,7 +974,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         # Up to ``end``, not the search's deadline: the attempt's confirming settle, or its trim's,
         # may have run past that, and a layout on target was then dropped unmeasured.
         if clock() + coverage_reserve(scene) <= end:
-            new.coverage = replace(problem, deadline=end).coverage(new.build.placed())
+            new.coverage = problem.coverage(new.build.placed(), until=end)
         if new.coverage is None:
             return chosen, f"{what} reached the count, but no time was left to measure its coverage"
     if not new.coverage.better_than(best.coverage):
@@ -1162,7 +1167,7 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
             measure = changes.get("coverage") is not None
             # Measured up to ``end``, not the search's deadline: the moves and two settles may
             # have passed that, and the moves were then dropped for want of a measure.
-            cover = replace(problem, deadline=end).coverage(after.placed()) if measure else None
+            cover = problem.coverage(after.placed(), until=end) if measure else None
             if not measure or (cover is not None  # else no time was left to measure it
                                and (than is None or cover.better_than(than))):
                 build, result = after, again

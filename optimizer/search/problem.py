@@ -118,11 +118,13 @@ class Problem:
     def time_left(self) -> float:
         return self.deadline - self.clock()
 
-    def coverage(self, placed: Placed) -> CoverageReport | None:
+    def coverage(self, placed: Placed, until: float | None = None) -> CoverageReport | None:
         """The coverage of ``placed`` (:func:`geometry.coverage.coverage`), or None if it is not
-        measured by the deadline."""
+        measured by the deadline (``until`` where given: a measure after the settles that the
+        search's deadline leaves room for)."""
         try:
-            return coverage(self.scene, placed, deadline=self.deadline, clock=self.clock)
+            return coverage(self.scene, placed, deadline=self.deadline if until is None else until,
+                            clock=self.clock)
         except TimeUp:
             return None
 
