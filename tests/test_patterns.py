@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -49,7 +50,7 @@ class _Stub:
     def __init__(self, volume, rate):
         self.volume, self.rate, self.seconds, self.rounds = volume, rate, 0.0, 0
 
-    def go(self, maxiter, seconds, clock):
+    def go(self, maxiter, seconds, clock, generations=None):
         self.volume -= self.rate * seconds
         self.seconds += seconds
         self.rounds += 1
@@ -65,6 +66,24 @@ def test_the_tuner_races_its_runs_and_gives_the_last_round_to_the_densest():
     # Each round has an equal share of what is left, split among the runs in it.
     assert runs[2].seconds > runs[3].seconds > runs[4].seconds > runs[0].seconds == runs[1].seconds
     assert min(runs, key=lambda r: r.volume) is runs[2]
+
+
+def test_the_race_is_ended_by_its_generations_so_the_lattice_is_the_same_on_a_slow_clock():
+    """Rounds of so many generations, not seconds: a clock that runs a thousand times slower (in
+    reality, a slower machine with the same share of the limit) tunes the same lattice, as long
+    as the count is reached first. So the cache, keyed by the mesh alone, holds one lattice."""
+    block = get_block("box:1.3x1.1x0.9")
+
+    def race(clock):
+        runs = [patterns._Run(block, pair, 0) for pair in (("rest-1", "rest-1"), ("rest-1", "rest-2"))]
+        patterns._race(runs, maxiter=300, seconds=1e5, clock=clock, generations=8)
+        return runs
+
+    fast, slow = race(time.monotonic), race(lambda: time.monotonic() / 1000.0)
+    # Four each in the first round; the denser goes on by eight more.
+    assert sorted(r.generations for r in fast) == [4, 12]
+    assert [r.generations for r in slow] == [r.generations for r in fast]
+    assert [r.lattice for r in slow] == [r.lattice for r in fast]
 
 
 def test_the_race_test_stub_is_a_fair_stand_in():

@@ -225,6 +225,15 @@ TUNE_RESTARTS = 1
 #: of the budget, split among the runs still in it, and the better ``1 / HALVING`` of them go on
 #: from their own populations into the next round.
 HALVING = 2
+#: Generations of differential evolution (each scores 21 lattices) that each round of the race
+#: shares among its runs, within ``maxiter`` a run. A count, not a time, ends a round, so that a
+#: block's tuned lattice (and the cache, keyed by its mesh alone) is the same on any machine that
+#: gets through the count within the round's share of the seconds; a slower machine, or a block
+#: whose lattices take long to lay, is stopped by the seconds as before. Measured on the Shake
+#: Block as a user's mesh (``mini-mesh``), one core: a generation takes about 41 ms, and with
+#: 30 s the two runs of the first round had done 182 and 187 generations when the clock ended
+#: it, and the densest went on to its 300; with this count the tuning takes about 19 s.
+ROUND_GENERATIONS = 300
 
 
 def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
@@ -248,7 +257,9 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     until it converges) and the densest lattice is kept. With ``seconds`` the
     runs are raced (:func:`_race`): all have a short first round, then the
     densest half goes on where it stopped, until one run has the last round to
-    itself.
+    itself. Each round ends after :data:`ROUND_GENERATIONS`, so the lattice
+    found is the same from run to run, unless the round's share of
+    ``seconds`` ends it first.
 
     Measured on the Shake Block's shape as a user's mesh, turned and moved
     (``benchmarks/scenes/mini-mesh.toml``), seeds 0-2 on one core: the old
@@ -320,11 +331,13 @@ def lattice_params(lattice: InterlockLattice) -> np.ndarray:
     return np.array([lattice.p, lattice.w, lattice.q, lattice.u, lattice.v, lattice.yaw_a, lattice.yaw_b])
 
 
-def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], float]) -> None:
+def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], float],
+          generations: int = ROUND_GENERATIONS) -> None:
     """Share ``seconds`` among ``runs`` by successive halving (:data:`HALVING`).
 
-    Each round has an equal share of the time left, split among the runs in
-    it; then the densest ``1 / HALVING`` of them (least volume per block, at
+    Each round has ``generations``, and an equal share of the time left, split
+    among the runs in it; a run stops at whichever of the two it reaches
+    first. Then the densest ``1 / HALVING`` of them (least volume per block, at
     least one) go on from where they stopped. The last round is the winner's
     alone.
     """
@@ -338,7 +351,7 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
         for run in alive:
             if clock() >= start + seconds and run.lattice is not None:
                 break  # each start scores at least one lattice, which may take seconds: no more
-            run.go(maxiter, share / len(alive), clock)
+            run.go(maxiter, share / len(alive), clock, math.ceil(generations / len(alive)))
         alive = sorted(alive, key=lambda r: r.volume)[: max(1, math.ceil(len(alive) / HALVING))]
 
 
@@ -385,9 +398,9 @@ class _Run:
         return self.area * self.height
 
     def go(self, maxiter: int, seconds: float | None, clock: Callable[[], float],
-           strategy: str = "best1bin") -> None:
-        """Carry on for up to ``seconds`` (and ``maxiter`` generations in all)."""
-        left = maxiter - self.generations
+           generations: int | None = None, strategy: str = "best1bin") -> None:
+        """Carry on for up to ``seconds`` and ``generations`` (and ``maxiter`` generations in all)."""
+        left = maxiter - self.generations if generations is None else min(maxiter - self.generations, generations)
         if left <= 0:
             return
         end = None if seconds is None else clock() + max(0.0, seconds)
@@ -590,7 +603,7 @@ def cache_lattice(block: Block, lattice: InterlockLattice) -> Path:
 
 
 #: Bumped whenever the tuner or the lattice's meaning changes, so that old cache entries are not used.
-TUNER_VERSION = 3
+TUNER_VERSION = 4
 
 
 def cache_path(block: Block) -> Path:
