@@ -400,7 +400,9 @@ class _Run:
     def go(self, maxiter: int, seconds: float | None, clock: Callable[[], float],
            generations: int | None = None, strategy: str = "best1bin") -> None:
         """Carry on for up to ``seconds`` and ``generations`` (and ``maxiter`` generations in all)."""
-        left = maxiter - self.generations if generations is None else min(maxiter - self.generations, generations)
+        left = maxiter - self.generations
+        if generations is not None:
+            left = min(left, generations)
         if left <= 0:
             return
         end = None if seconds is None else clock() + max(0.0, seconds)
