@@ -49,7 +49,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -69,7 +69,7 @@ from .search.cover import cover_moves
 from .search.cpsat import BoundStats, CpSat
 from .search.fill import PocketFill
 from .search.hangings import families
-from .search.patterns import InterlockLattice, lattice_for
+from .search.patterns import InterlockLattice, pattern_for
 from .search.physics import confirm, judged, raised_check, settled_layout, settling_by, stands, verdict
 from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
 from .search.shapes import ShapeCache
@@ -482,10 +482,16 @@ def optimize(
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     rng = np.random.default_rng(seed)
     spread = lattice is None and not keep  # a pattern given is laid as given; kept blocks set their own
+    tune_phase = None
     if lattice is None:
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
-        lattice = lattice_for(scene.block, scene.block_type, min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS),
-                              clock)
+        t0 = clock()
+        lattice, tuning = pattern_for(scene.block, scene.block_type,
+                                      min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS), clock)
+        if tuning.source != "built in":
+            tune_phase = {"strategy": "tune", "attempt": 1, "seconds": clock() - t0, **asdict(tuning),
+                          "area_per_block_m2": lattice.area_per_block, "blocks": 0,
+                          "porosity_percent": 100.0}
     # The search ends early enough for the confirming settle and the final checks, of the kept
     # blocks too (5000 kept ones, far apart, took 31 s of a 10 s limit when only the count was).
     n = max(scene.required_blocks, len(keep))
@@ -550,7 +556,7 @@ def optimize(
         cover_note = f"{cover_note}; {moved}" if cover_note else moved
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     tried[chosen] = best
-    phases = ([spread_phase] if spread_phase else []) + [p for t in tried for p in t.phases]
+    phases = [p for p in (tune_phase, spread_phase) if p] + [p for t in tried for p in t.phases]
     if len(tried) > 1:
         own = [t.unmoved or t for t in tried]
         phases.append({"strategy": "attempts", "attempts": len(tried), "chosen": chosen + 1,
@@ -660,7 +666,7 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
 
 def _without_fill(phases: list[dict[str, Any]]) -> str | None:
     """The shortfall where no pocket fill ran: CP-SAT's ground layer, or the strategies' names."""
-    names = list(dict.fromkeys(p["strategy"] for p in phases if p["strategy"] != "attempts"))
+    names = list(dict.fromkeys(p["strategy"] for p in phases if p["strategy"] not in ("attempts", "tune")))
     if not names:
         return None
     solved = [p for p in phases if p["strategy"] == "cpsat" and not p.get("skipped")]

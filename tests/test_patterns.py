@@ -174,15 +174,17 @@ def test_a_lattice_laid_past_the_tuners_end_is_given_up_before_its_drops(cube, m
 def test_a_tuned_lattice_is_cached_and_reused(tmp_path, monkeypatch):
     monkeypatch.setenv("SHOHA_CACHE", str(tmp_path))
     block = get_block("box:1.3x1.1x0.9")
-    first = lattice_for(block, block.name, tune_seconds=8.0)
+    first, tuning = patterns.pattern_for(block, block.name, tune_seconds=8.0)
+    assert tuning.source == "tuned" and tuning.generations > 0
     assert list((tmp_path / "lattices").iterdir()), "nothing was cached"
 
     def no_tuning(*args, **kwargs):
         raise AssertionError("the cached lattice should have been reused")
 
+    monkeypatch.setattr(patterns, "tune", no_tuning)
     monkeypatch.setattr(patterns, "tune_lattice", no_tuning)
-    again = lattice_for(block, block.name, tune_seconds=2.0)
-    assert again == first
+    again, tuning = patterns.pattern_for(block, block.name, tune_seconds=2.0)
+    assert again == first and tuning.source == "cached"
     # Another block is not served from this one's cache.
     other = get_block("box:1.3x1.1x0.95")
     assert lattice_for(other, other.name) == staggered(other)
@@ -219,3 +221,29 @@ def test_cli_block_tune_tunes_caches_and_reports(tmp_path):
         bad = run("block", "tune", "box:1x1x0.5", "--seconds", seconds)
         assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stderr
         assert "--seconds" in bad.stderr and "lattice" not in bad.stderr, bad.stderr
+
+
+def test_optimize_says_how_its_pattern_was_tuned_and_then_that_it_was_cached(tmp_path, monkeypatch):
+    """A block with no tuned pattern is tuned inside ``optimize``: its first phase says so, how
+    many generations, and whether the clock cut them (the pattern then depends on the machine).
+    The next run takes it from the cache; a built-in block has no such phase."""
+    from geometry.scene import parse_scene
+    from optimizer.api import optimize
+    from optimizer.search.beam import BeamSearch
+
+    monkeypatch.setenv("SHOHA_CACHE", str(tmp_path))
+    text = ('name = "cubes"\nblock = "box:1.2x1.2x1.2"\ntarget_porosity_percent = 47.0\n'
+            '[design]\ncrest_width_m = 3.0\nheight_m = 1.2\nslope_rise_run = [2.0, 3.0]\nlength_m = 3.0\n')
+    scene = parse_scene(text, "cubes.toml", None)
+
+    def run(s):
+        return optimize(s, seed=1, time_limit=40, strategies=[BeamSearch()], settle_layout=False, cover=False)
+
+    first = run(scene).phases[0]
+    assert first["strategy"] == "tune" and first["source"] == "tuned" and first["generations"] > 0
+    assert first["clock_cut"] is False and first["area_per_block_m2"] == pytest.approx(
+        patterns.cached_lattice(scene.block).area_per_block)
+    again = run(scene).phases[0]
+    assert again["strategy"] == "tune" and again["source"] == "cached" and again["generations"] == 0
+    builtin = parse_scene(text.replace("box:1.2x1.2x1.2", "shake-4t"), "shake.toml", None)
+    assert "tune" not in [p["strategy"] for p in run(builtin).phases]

@@ -236,9 +236,31 @@ HALVING = 2
 ROUND_GENERATIONS = 300
 
 
+@dataclass(frozen=True)
+class Tuning:
+    """Where a block's pattern came from, for the ``tune`` phase of ``shoha optimize``.
+
+    ``source`` is ``built in``, ``cached``, ``tuned`` or ``bond`` (the staggered bond:
+    no time to tune, or no feasible lattice found); ``generations`` of differential
+    evolution over all the tuner's runs; ``clock_cut`` where the seconds, not the
+    generation count, ended a round (the lattice then depends on the machine's speed).
+    """
+
+    source: str
+    generations: int = 0
+    clock_cut: bool = False
+
+
 def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
                  families: tuple[str, str] | None = None, seconds: float | None = None,
                  clock: Callable[[], float] = time.monotonic) -> InterlockLattice:
+    """The densest lattice :func:`tune` finds (its docstring says how)."""
+    return tune(block, seed, maxiter, families, seconds, clock)[0]
+
+
+def tune(block: Block, seed: int = 0, maxiter: int = 300,
+         families: tuple[str, str] | None = None, seconds: float | None = None,
+         clock: Callable[[], float] = time.monotonic) -> tuple[InterlockLattice, Tuning]:
     """Find the densest crane-feasible two-site lattice for a block: the least volume per block.
 
     Differential evolution over the seven lattice parameters, lengths bounded
@@ -298,7 +320,8 @@ def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
     best = min(runs, key=lambda r: r.volume)
     if best.lattice is None:
         raise RuntimeError(f"{block.name}: no crane-feasible lattice found")
-    return with_clearance(best.lattice, block, overdue)
+    return with_clearance(best.lattice, block, overdue), Tuning(
+        "tuned", sum(r.generations for r in runs), any(r.cut for r in runs))
 
 
 #: Share by which a tuned lattice is spread before it is used. The tuner drives a lattice to the
@@ -378,6 +401,7 @@ class _Run:
         self.population = np.vstack(seeds + [lo + rng.random(7) * (hi - lo) for _ in range(popsize * 7 - 1)])
         self.generations = 0
         self.rounds = 0
+        self.cut = False
         self.lattice: InterlockLattice | None = None
         # The taller hanging's height (it does not depend on the yaw).
         shapes = [Shape.of(block, hanging_of(block, f, 0.0)) for f in families]
@@ -424,6 +448,8 @@ class _Run:
             callback=None if end is None else (lambda *a, **k: clock() > end))
         self.rounds += 1
         self.generations += int(result.nit)
+        # Stopped by the clock short of its count (not by converging, nor by the count).
+        self.cut = self.cut or (end is not None and clock() > end and int(result.nit) < left)
         self.population = result.population
         # The fittest member may stop a hair short of the ground (its penalty still under a
         # feasible one's area): the densest member whose penalty is its area alone is kept.
@@ -552,7 +578,13 @@ TUNED: dict[str, dict[str, Any]] = {
 
 def lattice_for(block: Block, name: str, tune_seconds: float = 0.0,
                 clock: Callable[[], float] = time.monotonic) -> InterlockLattice:
-    """The placement lattice of a block type.
+    """The placement lattice of a block type (:func:`pattern_for`)."""
+    return pattern_for(block, name, tune_seconds, clock)[0]
+
+
+def pattern_for(block: Block, name: str, tune_seconds: float = 0.0,
+                clock: Callable[[], float] = time.monotonic) -> tuple[InterlockLattice, Tuning]:
+    """The placement lattice of a block type, and where it came from.
 
     The tuned lattice for the built-in blocks (:data:`TUNED`); else a lattice
     tuned for this exact block earlier and cached on disk, keyed by the
@@ -563,18 +595,18 @@ def lattice_for(block: Block, name: str, tune_seconds: float = 0.0,
     """
     builtin = tuned_builtin(block, name)
     if builtin is not None:
-        return builtin
+        return builtin, Tuning("built in")
     cached = cached_lattice(block)
     if cached is not None:
-        return cached
+        return cached, Tuning("cached")
     if tune_seconds > 0:
         try:
-            lattice = tune_lattice(block, seconds=tune_seconds, clock=clock)
+            lattice, tuning = tune(block, seconds=tune_seconds, clock=clock)
         except RuntimeError:
-            return staggered(block)
+            return staggered(block), Tuning("bond")
         cache_lattice(block, lattice)
-        return lattice
-    return staggered(block)
+        return lattice, tuning
+    return staggered(block), Tuning("bond")
 
 
 def tuned_builtin(block: Block, name: str) -> InterlockLattice | None:
