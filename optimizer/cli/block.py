@@ -73,7 +73,8 @@ SECONDS = _Seconds()
 @block.command("tune")
 @click.argument("name")
 @click.option("--seconds", type=SECONDS, default=180.0, show_default=True,
-              help="Time the tuner may take, 1 to 7200 s.")
+              help="Most time the tuner may take, 1 to 7200 s. It ends at its count of generations "
+                   "first where the machine is fast enough, with the same pattern on every run.")
 @click.option("--force", is_flag=True, help="Tune again even if a tuned pattern is cached.")
 @json_option
 def block_tune(name: str, seconds: float, force: bool, as_json: bool) -> None:
