@@ -84,6 +84,14 @@ def test_the_race_is_ended_by_its_generations_so_the_lattice_is_the_same_on_a_sl
     assert sorted(r.generations for r in fast) == [4, 12]
     assert [r.generations for r in slow] == [r.generations for r in fast]
     assert [r.lattice for r in slow] == [r.lattice for r in fast]
+    assert not any(r.cut for r in fast + slow)
+
+
+def test_a_tuning_the_clock_ends_says_so():
+    """Where the seconds run out before the generations, the tuning is the machine's: it says so."""
+    block = get_block("box:1.3x1.1x0.9")
+    _, tuning = patterns.tune(block, seconds=30.0, clock=_ticks())
+    assert tuning.source == "tuned" and tuning.clock_cut is True
 
 
 def test_the_race_test_stub_is_a_fair_stand_in():
@@ -211,8 +219,10 @@ def test_cli_block_tune_tunes_caches_and_reports(tmp_path):
     assert first.returncode == 0, first.stderr
     d = json.loads(first.stdout)
     assert d["source"] == "tuned" and Path(d["path"]).is_file() and d["area_per_block_m2"] > 0
+    assert d["generations"] > 0 and isinstance(d["clock_cut"], bool)
     again = json.loads(run("block", "tune", "box:1.1x0.9x0.7", "--json").stdout)
     assert again["source"] == "cached" and again["area_per_block_m2"] == d["area_per_block_m2"]
+    assert again["generations"] == 0 and again["clock_cut"] is False
     assert json.loads(run("block", "tune", "shake-4t", "--json").stdout)["source"] == "built in"
     bad = run("block", "tune", "box:1x1", "--json")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1

@@ -96,21 +96,25 @@ def block_tune(name: str, seconds: float, force: bool, as_json: bool) -> None:
     start = time.perf_counter()
     built_in = patterns.tuned_builtin(b, name)
     cached = None if force or built_in is not None else patterns.cached_lattice(b)
+    tuning = patterns.Tuning("built in" if built_in is not None else "cached")
     if built_in is not None:
-        lattice, source, path = built_in, "built in", None
+        lattice, path = built_in, None
     elif cached is not None:
-        lattice, source, path = cached, "cached", str(patterns.cache_path(b))
+        lattice, path = cached, str(patterns.cache_path(b))
     else:
         try:
-            lattice = patterns.tune_lattice(b, seconds=seconds)
+            lattice, tuning = patterns.tune(b, seconds=seconds)
         except RuntimeError as exc:
             raise InputError(f"{name}: {exc}") from None
-        source, path = "tuned", str(patterns.cache_lattice(b, lattice))
-    payload = {"name": name, "source": source, "area_per_block_m2": lattice.area_per_block,
+        path = str(patterns.cache_lattice(b, lattice))
+    payload = {"name": name, "source": tuning.source, "area_per_block_m2": lattice.area_per_block,
                "area_per_block_per_h2": lattice.area_per_block / b.height**2,
                "families": [lattice.family_a, lattice.family_b], "path": path,
-               "seconds": time.perf_counter() - start}
-    human = (f"{name}: {source} pattern, {lattice.area_per_block:.3f} m2 a block "
+               "seconds": time.perf_counter() - start, "generations": tuning.generations,
+               "clock_cut": tuning.clock_cut}
+    cut = (f"; the --seconds ended it after {tuning.generations} generations, so another machine may tune "
+           "another pattern" if tuning.clock_cut else "")
+    human = (f"{name}: {tuning.source} pattern, {lattice.area_per_block:.3f} m2 a block "
              f"({lattice.area_per_block / b.height**2:.3f} H^2), hangings {lattice.family_a} and "
-             f"{lattice.family_b}" + (f"; {path}" if path else ""))
+             f"{lattice.family_b}" + (f"; {path}" if path else "") + cut)
     emit(payload, as_json, human)
