@@ -666,7 +666,7 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
 
 def _without_fill(phases: list[dict[str, Any]]) -> str | None:
     """The shortfall where no pocket fill ran: CP-SAT's ground layer, or the strategies' names."""
-    names = list(dict.fromkeys(p["strategy"] for p in phases if p["strategy"] not in ("attempts", "tune")))
+    names = list(dict.fromkeys(p["strategy"] for p in phases if p["strategy"] != "attempts"))
     if not names:
         return None
     solved = [p for p in phases if p["strategy"] == "cpsat" and not p.get("skipped")]

@@ -7,7 +7,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -61,30 +60,93 @@ def test_the_tuner_races_its_runs_and_gives_the_last_round_to_the_densest():
     densest after each round goes on, wherever it stands in the list: the one that starts
     densest but does not improve is overtaken in the third round."""
     runs = [_Stub(10.0, 0.01), _Stub(10.0, 0.02), _Stub(10.0, 0.05), _Stub(9.0, 0.0), _Stub(10.0, 0.04)]
-    patterns._race(runs, maxiter=100, seconds=80.0, clock=_ticks())
+    # 30 generations a round, which no run's maxiter cuts: each round has as many in all.
+    patterns._race(runs, maxiter=1000, seconds=80.0, clock=_ticks(), generations=30)
     assert [r.rounds for r in runs] == [1, 1, 4, 3, 2]
     # Each round has an equal share of what is left, split among the runs in it.
     assert runs[2].seconds > runs[3].seconds > runs[4].seconds > runs[0].seconds == runs[1].seconds
     assert min(runs, key=lambda r: r.volume) is runs[2]
 
 
-def test_the_race_is_ended_by_its_generations_so_the_lattice_is_the_same_on_a_slow_clock():
-    """Rounds of so many generations, not seconds: a clock that runs a thousand times slower (in
-    reality, a slower machine with the same share of the limit) tunes the same lattice, as long
-    as the count is reached first. So the cache, keyed by the mesh alone, holds one lattice."""
+def _paced(pace):
+    """A clock that moves ``pace`` seconds each time it is read: the same work takes ``pace``
+    times as long, as on a machine ``pace`` times slower."""
+    ticks = itertools.count()
+    return lambda: pace * float(next(ticks))
+
+
+def test_the_race_is_ended_by_its_generations_so_the_lattice_is_the_same_on_a_slower_machine():
+    """Rounds of so many generations, not seconds: a machine three times slower tunes the same
+    lattice, as long as it reaches the count within the seconds. (Rounds ended on the clock
+    gave the slower machine a third of the generations, and another lattice.) So the cache,
+    keyed by the mesh alone, holds one lattice."""
     block = get_block("box:1.3x1.1x0.9")
 
     def race(clock):
         runs = [patterns._Run(block, pair, 0) for pair in (("rest-1", "rest-1"), ("rest-1", "rest-2"))]
-        patterns._race(runs, maxiter=300, seconds=1e5, clock=clock, generations=8)
+        # About 22 readings a generation: 8 generations take about 180 s on the fast clock and
+        # 540 s on the slow one, well within 4000 s.
+        patterns._race(runs, maxiter=300, seconds=4000.0, clock=clock, generations=8)
         return runs
 
-    fast, slow = race(time.monotonic), race(lambda: time.monotonic() / 1000.0)
+    fast, slow = race(_paced(1.0)), race(_paced(3.0))
     # Four each in the first round; the denser goes on by eight more.
     assert sorted(r.generations for r in fast) == [4, 12]
     assert [r.generations for r in slow] == [r.generations for r in fast]
     assert [r.lattice for r in slow] == [r.lattice for r in fast]
     assert not any(r.cut for r in fast + slow)
+
+
+def test_the_race_shares_its_time_by_the_generations_each_round_has():
+    """Two runs, 300 generations a round and 300 a run: the first round has 150 each, the last
+    only the 150 its run has left. So the first round gets two thirds of the time (the clock
+    split it in halves, and left a run 7.5 s of 30 for its 150 generations on ``mini-mesh``)."""
+    assert patterns._plan(2, 300, 300) == [(150, 300), (150, 150)]
+    assert patterns._plan(5, 1000, 30) == [(6, 30), (10, 30), (15, 30), (30, 30)]
+    now = [0.0]
+
+    class Timed(_Stub):
+        """A stub that takes all the time it is given."""
+
+        def go(self, maxiter, seconds, clock, generations=None):
+            super().go(maxiter, seconds, clock, generations)
+            now[0] += seconds
+
+    runs = [Timed(10.0, 0.01), Timed(10.0, 0.02)]
+    patterns._race(runs, maxiter=300, seconds=90.0, clock=lambda: now[0], generations=300)
+    # 60 s for the first round, 30 each; the denser then has the last 30. (In halves: 22.5 and 67.5.)
+    assert sorted(r.seconds for r in runs) == [pytest.approx(30.0), pytest.approx(60.0)]
+
+
+def test_a_run_the_race_has_no_time_left_for_is_cut():
+    """Runs that overrun their share leave the winner no last round: it says it was cut."""
+    now = [0.0]
+
+    class Slow(_Stub):
+        lattice, cut, generations = "found", False, 0
+
+        def go(self, maxiter, seconds, clock, generations=None):
+            super().go(maxiter, seconds, clock, generations)
+            self.generations += 1
+            now[0] += 2 * seconds  # twice the time it was given
+
+    runs = [Slow(10.0, 0.01), Slow(10.0, 0.02)]
+    patterns._race(runs, maxiter=300, seconds=90.0, clock=lambda: now[0], generations=300)
+    # The denser won the first round and had no second: it was cut; the other lost the race.
+    assert [r.rounds for r in runs] == [1, 1] and [r.cut for r in runs] == [False, True]
+
+
+def test_a_run_the_clock_stops_within_a_generation_is_cut():
+    """The clock may end a round in its last generation, the rest of that population scored
+    unlaid: the count was reached in name only, and the run says it was cut."""
+    run = patterns._Run(get_block("box:1.3x1.1x0.9"), ("rest-1", "rest-1"), 0)
+    # One reading for the end, 21 for the first population, 22 a generation: the end falls in the
+    # second generation, which is then finished with the rest of its lattices unlaid.
+    run.go(300, 55.0, _ticks(), generations=2)
+    assert run.generations == 2 and run.cut is True
+    whole = patterns._Run(get_block("box:1.3x1.1x0.9"), ("rest-1", "rest-1"), 0)
+    whole.go(300, 1000.0, _ticks(), generations=2)
+    assert whole.generations == 2 and whole.cut is False
 
 
 def test_a_tuning_the_clock_ends_says_so():
@@ -190,9 +252,9 @@ def test_a_tuned_lattice_is_cached_and_reused(tmp_path, monkeypatch):
         raise AssertionError("the cached lattice should have been reused")
 
     monkeypatch.setattr(patterns, "tune", no_tuning)
-    monkeypatch.setattr(patterns, "tune_lattice", no_tuning)
-    again, tuning = patterns.pattern_for(block, block.name, tune_seconds=2.0)
-    assert again == first and tuning.source == "cached"
+    again, cached = patterns.pattern_for(block, block.name, tune_seconds=2.0)
+    # How it was tuned is kept with it: a lattice the clock cut is still the machine's.
+    assert again == first and cached == replace(tuning, source="cached")
     # Another block is not served from this one's cache.
     other = get_block("box:1.3x1.1x0.95")
     assert lattice_for(other, other.name) == staggered(other)
@@ -222,7 +284,7 @@ def test_cli_block_tune_tunes_caches_and_reports(tmp_path):
     assert d["generations"] > 0 and isinstance(d["clock_cut"], bool)
     again = json.loads(run("block", "tune", "box:1.1x0.9x0.7", "--json").stdout)
     assert again["source"] == "cached" and again["area_per_block_m2"] == d["area_per_block_m2"]
-    assert again["generations"] == 0 and again["clock_cut"] is False
+    assert (again["generations"], again["clock_cut"]) == (d["generations"], d["clock_cut"])
     assert json.loads(run("block", "tune", "shake-4t", "--json").stdout)["source"] == "built in"
     bad = run("block", "tune", "box:1x1", "--json")
     assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1
@@ -251,9 +313,10 @@ def test_optimize_says_how_its_pattern_was_tuned_and_then_that_it_was_cached(tmp
 
     first = run(scene).phases[0]
     assert first["strategy"] == "tune" and first["source"] == "tuned" and first["generations"] > 0
-    assert first["clock_cut"] is False and first["area_per_block_m2"] == pytest.approx(
+    assert isinstance(first["clock_cut"], bool) and first["area_per_block_m2"] == pytest.approx(
         patterns.cached_lattice(scene.block).area_per_block)
     again = run(scene).phases[0]
-    assert again["strategy"] == "tune" and again["source"] == "cached" and again["generations"] == 0
+    assert again["strategy"] == "tune" and again["source"] == "cached"
+    assert (again["generations"], again["clock_cut"]) == (first["generations"], first["clock_cut"])
     builtin = parse_scene(text.replace("box:1.2x1.2x1.2", "shake-4t"), "shake.toml", None)
     assert "tune" not in [p["strategy"] for p in run(builtin).phases]

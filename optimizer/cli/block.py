@@ -94,26 +94,17 @@ def block_tune(name: str, seconds: float, force: bool, as_json: bool) -> None:
 
     b = get_block(name, Path.cwd())
     start = time.perf_counter()
-    built_in = patterns.tuned_builtin(b, name)
-    cached = None if force or built_in is not None else patterns.cached_lattice(b)
-    tuning = patterns.Tuning("built in" if built_in is not None else "cached")
-    if built_in is not None:
-        lattice, path = built_in, None
-    elif cached is not None:
-        lattice, path = cached, str(patterns.cache_path(b))
-    else:
-        try:
-            lattice, tuning = patterns.tune(b, seconds=seconds)
-        except RuntimeError as exc:
-            raise InputError(f"{name}: {exc}") from None
-        path = str(patterns.cache_lattice(b, lattice))
+    lattice, tuning = patterns.pattern_for(b, name, seconds, force=force)
+    if tuning.source == "bond":
+        raise InputError(f"{name}: no crane-feasible lattice found in {seconds:g} s")
+    path = None if tuning.source == "built in" else str(patterns.cache_path(b))
     payload = {"name": name, "source": tuning.source, "area_per_block_m2": lattice.area_per_block,
                "area_per_block_per_h2": lattice.area_per_block / b.height**2,
                "families": [lattice.family_a, lattice.family_b], "path": path,
                "seconds": time.perf_counter() - start, "generations": tuning.generations,
                "clock_cut": tuning.clock_cut}
-    cut = (f"; the --seconds ended it after {tuning.generations} generations, so another machine may tune "
-           "another pattern" if tuning.clock_cut else "")
+    cut = (f"; the clock ended its tuning after {tuning.generations} generations, so another machine "
+           "may tune another pattern" if tuning.clock_cut else "")
     human = (f"{name}: {tuning.source} pattern, {lattice.area_per_block:.3f} m2 a block "
              f"({lattice.area_per_block / b.height**2:.3f} H^2), hangings {lattice.family_a} and "
              f"{lattice.family_b}" + (f"; {path}" if path else "") + cut)

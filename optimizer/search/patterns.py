@@ -6,7 +6,7 @@ Two patterns give horizontal positions, each then jittered by the search:
     A lattice with two sites per cell: a block in crown hanging (one leg up)
     and a block in level hanging (one leg down), each with its own yaw. Every
     crown is set first, then every level block drops into the pocket between
-    crowns and lands on the ground. Tuned per block type (:func:`tune_lattice`)
+    crowns and lands on the ground. Tuned per block type (:func:`tune`)
     by differential evolution, minimising the area per block subject to the
     crane's rule: each block, lowered from above after the ones before it,
     reaches the ground. For the Shake Block this packs one 1.66 m layer at
@@ -226,13 +226,15 @@ TUNE_RESTARTS = 1
 #: from their own populations into the next round.
 HALVING = 2
 #: Generations of differential evolution (each scores 21 lattices) that each round of the race
-#: shares among its runs, within ``maxiter`` a run. A count, not a time, ends a round, so that a
-#: block's tuned lattice (and the cache, keyed by its mesh alone) is the same on any machine that
-#: gets through the count within the round's share of the seconds; a slower machine, or a block
-#: whose lattices take long to lay, is stopped by the seconds as before. Measured on the Shake
-#: Block as a user's mesh (``mini-mesh``), one core: a generation takes about 41 ms, and with
-#: 30 s the two runs of the first round had done 182 and 187 generations when the clock ended
-#: it, and the densest went on to its 300; with this count the tuning takes about 19 s.
+#: shares among its runs, each run ``maxiter`` at most in all (so with two runs the second round
+#: has 150, not 300). A count, not a time, ends a round, so that a block's tuned lattice (and
+#: the cache, keyed by its mesh alone) is the same from run to run on a machine that gets
+#: through the count within the round's share of the seconds; a slower machine, or a block
+#: whose lattices take long to lay, is stopped by the seconds as before, and says so
+#: (:class:`Tuning`). Measured on the Shake Block as a user's mesh (``mini-mesh``), one core: a
+#: generation takes about 41 ms, and with 30 s the two runs of the first round had done 182 and
+#: 187 generations when the clock ended it, and the densest went on to its 300; with this count
+#: the tuning took 17.4 s alone, and 22.4 s in the benchmark beside another run.
 ROUND_GENERATIONS = 300
 
 
@@ -249,6 +251,15 @@ class Tuning:
     source: str
     generations: int = 0
     clock_cut: bool = False
+
+
+class NoLattice(RuntimeError):
+    """The tuner found no crane-feasible lattice (mostly: the seconds ran out before any was
+    scored), with what it did (:class:`Tuning`)."""
+
+    def __init__(self, message: str, tuning: Tuning):
+        super().__init__(message)
+        self.tuning = tuning
 
 
 def tune_lattice(block: Block, seed: int = 0, maxiter: int = 300,
@@ -281,7 +292,7 @@ def tune(block: Block, seed: int = 0, maxiter: int = 300,
     densest half goes on where it stopped, until one run has the last round to
     itself. Each round ends after :data:`ROUND_GENERATIONS`, so the lattice
     found is the same from run to run, unless the round's share of
-    ``seconds`` ends it first.
+    ``seconds`` ends it first (the :class:`Tuning` returned says which).
 
     Measured on the Shake Block's shape as a user's mesh, turned and moved
     (``benchmarks/scenes/mini-mesh.toml``), seeds 0-2 on one core: the old
@@ -290,20 +301,21 @@ def tune(block: Block, seed: int = 0, maxiter: int = 300,
     75 blocks (67-70 placed). Populations of 3 x 7 converge faster under a
     budget (20 s on the pair that wins, four seeds: 1.62-1.74 m^2, against
     1.83-2.01 for 8 x 7, 1.62-1.80 for 4 x 7 and 1.66-1.73 for 2 x 7), and one
-    seed per pair, raced, reached 1.62 / 1.66 / 1.62 m^2 in 30 s. The
-    built-in lattice is 1.70 m^2.
+    seed per pair, raced, reached 1.62 / 1.66 / 1.62 m^2 in 30 s (its rounds
+    then ended on the clock; ended on :data:`ROUND_GENERATIONS`, seed 0 gives
+    1.58 m^2 in 17 s). The built-in lattice is 1.70 m^2.
 
     Parameters
     ----------
     seconds : float, optional
-        Stop after this many seconds of ``clock`` (the best lattice found so
-        far is returned); ``maxiter`` generations at most either way. Each run
-        in each round of the race does at least one generation, so a budget
-        shorter than that is overrun by it.
+        The most seconds of ``clock`` the race may take (the best lattice found
+        so far is returned when they run out); ``maxiter`` generations a run at
+        most either way. Each run in each round of the race does at least one
+        generation, so a budget shorter than that is overrun by it.
 
     Raises
     ------
-    RuntimeError
+    NoLattice
         If no feasible lattice is found (not even the staggered bond).
     """
     names = hangings.families(block)
@@ -318,10 +330,10 @@ def tune(block: Block, seed: int = 0, maxiter: int = 300,
     else:
         _race(runs, maxiter, seconds, clock)
     best = min(runs, key=lambda r: r.volume)
+    tuning = Tuning("tuned", sum(r.generations for r in runs), any(r.cut for r in runs))
     if best.lattice is None:
-        raise RuntimeError(f"{block.name}: no crane-feasible lattice found")
-    return with_clearance(best.lattice, block, overdue), Tuning(
-        "tuned", sum(r.generations for r in runs), any(r.cut for r in runs))
+        raise NoLattice(f"{block.name}: no crane-feasible lattice found", replace(tuning, source="bond"))
+    return with_clearance(best.lattice, block, overdue), tuning
 
 
 #: Share by which a tuned lattice is spread before it is used. The tuner drives a lattice to the
@@ -358,24 +370,41 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
           generations: int = ROUND_GENERATIONS) -> None:
     """Share ``seconds`` among ``runs`` by successive halving (:data:`HALVING`).
 
-    Each round has ``generations``, and an equal share of the time left, split
-    among the runs in it; a run stops at whichever of the two it reaches
-    first. Then the densest ``1 / HALVING`` of them (least volume per block, at
-    least one) go on from where they stopped. The last round is the winner's
-    alone.
+    Each round shares ``generations`` among the runs in it (each run
+    ``maxiter`` at most in all), and the time left in proportion to the
+    generations it has of those still to come (:func:`_plan`); a run stops at
+    whichever of its generations and its time it reaches first. Then the
+    densest ``1 / HALVING`` of them (least volume per block, at least one) go
+    on from where they stopped. The last round is the winner's alone. A run the
+    time leaves no turn is marked cut, as one the clock stops is.
     """
     start = clock()
     alive = list(runs)
-    rounds, n = 1, len(runs)
-    while n > 1:
-        n, rounds = math.ceil(n / HALVING), rounds + 1
-    for k in range(rounds):
-        share = (start + seconds - clock()) / (rounds - k)
-        for run in alive:
+    plan = _plan(len(runs), maxiter, generations)
+    for k, (each, _) in enumerate(plan):
+        to_come = sum(total for _, total in plan[k:])
+        share = (start + seconds - clock()) * (plan[k][1] / to_come if to_come else 1.0 / (len(plan) - k))
+        for i, run in enumerate(alive):
             if clock() >= start + seconds and run.lattice is not None:
-                break  # each start scores at least one lattice, which may take seconds: no more
-            run.go(maxiter, share / len(alive), clock, math.ceil(generations / len(alive)))
+                # Each start scores at least one lattice, which may take seconds: no more.
+                for skipped in alive[i:]:
+                    skipped.cut = skipped.cut or skipped.generations < maxiter
+                break
+            run.go(maxiter, share / len(alive), clock, each)
         alive = sorted(alive, key=lambda r: r.volume)[: max(1, math.ceil(len(alive) / HALVING))]
+
+
+def _plan(n: int, maxiter: int, generations: int) -> list[tuple[int, int]]:
+    """The race's rounds by the count, for ``n`` runs from their start: the generations each
+    run in a round has, and the round's in all."""
+    plan, done = [], 0
+    while True:
+        each = max(0, min(math.ceil(generations / n), maxiter - done))
+        plan.append((each, each * n))
+        done += each
+        if n == 1:
+            return plan
+        n = math.ceil(n / HALVING)
 
 
 class _Run:
@@ -436,20 +465,26 @@ class _Run:
             # The generation's callback ends a run, but a population (21 lattices, each a score
             # of drops, 0.25 s apiece on a 12-piece torus) is scored first: past the end, the
             # rest of it are scored as infeasible without being laid, and one still being laid
-            # LATE_S past it is given up as infeasible too.
+            # LATE_S past it is given up as infeasible too. Either way the clock, not the
+            # count, decided this run: it is marked cut.
             if end is not None and clock() > end:
+                self.cut = True
                 return PAST_END
-            return _lattice_penalty(params, self.block, self.families, overdue)
+            score = _lattice_penalty(params, self.block, self.families, overdue)
+            self.cut = self.cut or score == PAST_END
+            return score
+
+        def stop(*args: Any, **kwargs: Any) -> bool:
+            over = end is not None and clock() > end
+            self.cut = self.cut or over
+            return over
 
         result = differential_evolution(
             penalty, self.bounds,
             seed=self.seed + 1000 * self.rounds, maxiter=left, init=self.population, tol=tol.tuning,
-            polish=False, strategy=strategy,
-            callback=None if end is None else (lambda *a, **k: clock() > end))
+            polish=False, strategy=strategy, callback=None if end is None else stop)
         self.rounds += 1
         self.generations += int(result.nit)
-        # Stopped by the clock short of its count (not by converging, nor by the count).
-        self.cut = self.cut or (end is not None and clock() > end and int(result.nit) < left)
         self.population = result.population
         # The fittest member may stop a hair short of the ground (its penalty still under a
         # feasible one's area): the densest member whose penalty is its area alone is kept.
@@ -583,28 +618,29 @@ def lattice_for(block: Block, name: str, tune_seconds: float = 0.0,
 
 
 def pattern_for(block: Block, name: str, tune_seconds: float = 0.0,
-                clock: Callable[[], float] = time.monotonic) -> tuple[InterlockLattice, Tuning]:
+                clock: Callable[[], float] = time.monotonic, force: bool = False
+                ) -> tuple[InterlockLattice, Tuning]:
     """The placement lattice of a block type, and where it came from.
 
-    The tuned lattice for the built-in blocks (:data:`TUNED`); else a lattice
-    tuned for this exact block earlier and cached on disk, keyed by the
-    SHA-256 of its mesh (``shoha block tune``, or an earlier ``shoha
-    optimize``); else, given ``tune_seconds``, one tuned now within them
-    (:func:`tune_lattice`) and cached; else the staggered half-brick bond,
-    which needs no tuning.
+    The tuned lattice for the built-in blocks (:data:`TUNED`); else, unless
+    ``force``, a lattice tuned for this exact block earlier and cached on disk,
+    keyed by the SHA-256 of its mesh (``shoha block tune``, or an earlier
+    ``shoha optimize``); else, given ``tune_seconds``, one tuned now within
+    them (:func:`tune`) and cached; else (or where the tuner finds none) the
+    staggered half-brick bond, which needs no tuning.
     """
     builtin = tuned_builtin(block, name)
     if builtin is not None:
         return builtin, Tuning("built in")
-    cached = cached_lattice(block)
+    cached = None if force else cached_pattern(block)
     if cached is not None:
-        return cached, Tuning("cached")
+        return cached
     if tune_seconds > 0:
         try:
             lattice, tuning = tune(block, seconds=tune_seconds, clock=clock)
-        except RuntimeError:
-            return staggered(block), Tuning("bond")
-        cache_lattice(block, lattice)
+        except NoLattice as exc:
+            return staggered(block), exc.tuning
+        cache_lattice(block, lattice, tuning)
         return lattice, tuning
     return staggered(block), Tuning("bond")
 
@@ -619,20 +655,33 @@ def tuned_builtin(block: Block, name: str) -> InterlockLattice | None:
 
 def cached_lattice(block: Block) -> InterlockLattice | None:
     """The lattice tuned for this exact block and cached, if there is one."""
+    cached = cached_pattern(block)
+    return None if cached is None else cached[0]
+
+
+def cached_pattern(block: Block) -> tuple[InterlockLattice, Tuning] | None:
+    """The lattice tuned for this exact block and cached, and how it was tuned (its ``source``
+    ``cached``), if there is one."""
     path = cache_path(block)
     if not path.is_file():
         return None
     try:
-        return InterlockLattice(**json.loads(path.read_text()))
-    except (ValueError, TypeError):
+        data = json.loads(path.read_text())
+        how = data.pop("tuning", {})
+        return InterlockLattice(**data), Tuning("cached", int(how.get("generations", 0)),
+                                                bool(how.get("clock_cut", False)))
+    except (ValueError, TypeError, AttributeError):
         return None  # a broken cache file is as good as none: tune again
 
 
-def cache_lattice(block: Block, lattice: InterlockLattice) -> Path:
-    """Keep a block's tuned lattice for later runs (atomically: whole or not at all)."""
+def cache_lattice(block: Block, lattice: InterlockLattice, tuning: Tuning | None = None) -> Path:
+    """Keep a block's tuned lattice, and how it was tuned, for later runs (atomically: whole or
+    not at all)."""
     path = cache_path(block)
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, json.dumps(asdict(lattice)))
+    how = {} if tuning is None else {"tuning": {"generations": tuning.generations,
+                                                "clock_cut": tuning.clock_cut}}
+    atomic_write(path, json.dumps(asdict(lattice) | how))
     return path
 
 
