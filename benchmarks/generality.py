@@ -151,7 +151,7 @@ def judge(method: str, scene: str, seed: int, out: Path, ran: dict) -> dict:
                                if p.get("strategy") == "spread"), None),
         # Where the block's pattern came from (absent for a built-in block): whether the clock
         # cut the tuning, which makes the pattern, and so the layout, depend on the machine.
-        "tuning": next((f"{p['source']}" + (f" {p['generations']} gen" if p["source"] == "tuned" else "")
+        "tuning": next((p["source"] + (f" {p['generations']} gen" if p["source"] == "tuned" else "")
                         + (", cut by the clock" if p.get("clock_cut") else "")
                         for p in ran.get("phases", []) if p.get("strategy") == "tune"), None),
     })

@@ -101,8 +101,8 @@ def test_the_race_shares_its_time_by_the_generations_each_round_has():
     """Two runs, 300 generations a round and 300 a run: the first round has 150 each, the last
     only the 150 its run has left. So the first round gets two thirds of the time (the clock
     split it in halves, and left a run 7.5 s of 30 for its 150 generations on ``mini-mesh``)."""
-    assert patterns._plan(2, 300, 300) == [(150, 300), (150, 150)]
-    assert patterns._plan(5, 1000, 30) == [(6, 30), (10, 30), (15, 30), (30, 30)]
+    assert patterns._plan(2, 300, 300) == [150, 150]
+    assert patterns._plan(5, 1000, 30) == [6, 10, 15, 30]
     now = [0.0]
 
     class Timed(_Stub):

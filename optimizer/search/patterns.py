@@ -380,10 +380,12 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
     """
     start = clock()
     alive = list(runs)
-    plan = _plan(len(runs), maxiter, generations)
-    for k, (each, _) in enumerate(plan):
-        to_come = sum(total for _, total in plan[k:])
-        share = (start + seconds - clock()) * (plan[k][1] / to_come if to_come else 1.0 / (len(plan) - k))
+    plan, counts = _plan(len(runs), maxiter, generations), _alive_counts(len(runs))
+    for k, each in enumerate(plan):
+        # The round's generations in all, against those of the rounds still to come (none has
+        # any once every run is at maxiter: then no run goes on, whatever its share).
+        to_come = sum(g * n for g, n in zip(plan[k:], counts[k:], strict=True))
+        share = (start + seconds - clock()) * each * len(alive) / to_come if to_come else 0.0
         for i, run in enumerate(alive):
             if clock() >= start + seconds and run.lattice is not None:
                 # Each start scores at least one lattice, which may take seconds: no more.
@@ -394,17 +396,22 @@ def _race(runs: list[_Run], maxiter: int, seconds: float, clock: Callable[[], fl
         alive = sorted(alive, key=lambda r: r.volume)[: max(1, math.ceil(len(alive) / HALVING))]
 
 
-def _plan(n: int, maxiter: int, generations: int) -> list[tuple[int, int]]:
-    """The race's rounds by the count, for ``n`` runs from their start: the generations each
-    run in a round has, and the round's in all."""
+def _alive_counts(n: int) -> list[int]:
+    """How many of ``n`` runs are in each round of the race."""
+    counts = [n]
+    while counts[-1] > 1:
+        counts.append(math.ceil(counts[-1] / HALVING))
+    return counts
+
+
+def _plan(n: int, maxiter: int, generations: int) -> list[int]:
+    """The generations each run in each round of the race has by the count, for ``n`` runs from
+    their start: ``generations`` shared among a round's runs, ``maxiter`` a run in all."""
     plan, done = [], 0
-    while True:
-        each = max(0, min(math.ceil(generations / n), maxiter - done))
-        plan.append((each, each * n))
-        done += each
-        if n == 1:
-            return plan
-        n = math.ceil(n / HALVING)
+    for alive in _alive_counts(n):
+        plan.append(max(0, min(math.ceil(generations / alive), maxiter - done)))
+        done += plan[-1]
+    return plan
 
 
 class _Run:
