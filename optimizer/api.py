@@ -27,7 +27,7 @@ The pipeline, each step a pluggable strategy instance:
    (:func:`trim_repair`, ``search.trim``);
 6. if the layout is still short of its count, does not stand, or is off its
    porosity window, and the time its search took is left before the
-   deadline, steps 1-5 run again on the same random stream (up to
+   deadline, steps 1-5 run again on a random stream of their own (up to
    ``ATTEMPTS`` in all), and the best layout is kept;
 7. if the best layout reaches its count and porosity but leaves the mound's
    surface bare, and its time is left, one more attempt lays rows along the
@@ -178,6 +178,29 @@ TUNE_SHARE = 0.25
 TUNE_MAX_SECONDS = 60.0
 #: The share of the limit that choosing how far to spread the pattern may take (``spread_to_count``).
 SPREAD_SHARE = 0.05
+
+#: The steps of a run that draw random numbers, each numbered and with a stream of its own
+#: (:func:`streams`): the attempts, each one's trim, the attempts with toe rows and their trims,
+#: and the covering moves of an attempt kept (of an attempt with rows, numbered as those are).
+STEPS = ("attempt", "trim", "rows", "rows trim", "cover", "rows cover")
+
+#: ``stream(step, number)``: the random stream of one step of a run (:func:`streams`).
+Streams = Callable[[str, int], np.random.Generator]
+
+
+def streams(seed: int) -> Streams:
+    """The random streams of a run with ``seed``: one for each numbered step (``STEPS``).
+
+    Each step draws from its own stream, spawned from the seed, not from one stream that the
+    steps before it have drawn on. So a step made or left out for want of time, or a step that
+    ran longer and drew more, does not change what the steps after it draw. On one stream
+    (until 2026-12-06), ``mini-mesh`` seed 1 tuned its pattern quicker in one run than in
+    another; the time saved let covering moves be tried on its first attempt, they moved
+    nothing, but their draws changed the attempt with toe rows that followed, and the layout
+    came out at 57.01 %, over the window, where it had been 4.70 % bare within it."""
+    def stream(step: str, number: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence([seed, STEPS.index(step), number]))
+    return stream
 
 
 @dataclass
@@ -427,7 +450,8 @@ def optimize(
     ----------
     scene : Scene
     seed : int
-        All randomness comes from ``numpy.random.default_rng(seed)``; the same
+        All randomness comes from streams spawned from the seed, one for each
+        step (:func:`streams`); the same
         seed gives the same layout, byte for byte, as long as ``time_limit``
         neither cuts the strategies' fixed work short nor decides whether
         another attempt fits (``ATTEMPTS``), nor whether a trim is made again
@@ -480,7 +504,7 @@ def optimize(
     kept_given, keep = keep is not None, tuple(keep or ())
     check_keep(scene, keep)
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
-    rng = np.random.default_rng(seed)
+    stream = streams(seed)
     spread = lattice is None and not keep  # a pattern given is laid as given; kept blocks set their own
     tune_phase = None
     if lattice is None:
@@ -529,13 +553,13 @@ def optimize(
     end = end_for(n)
     tried: list[_Attempt] = []
     for attempt in range(1, ATTEMPTS + 1):
-        tried.append(_attempt(problem, strategies_run, scene, keep, rng, settle_layout, end, attempt,
-                              end_for=end_for))
+        tried.append(_attempt(problem, strategies_run, scene, keep, stream("attempt", attempt), settle_layout,
+                              end, attempt, end_for=end_for))
         if settle_layout:
             problem = calibrated(problem, end)
             # A layout at its count over its porosity window: blocks that stick out moved in,
             # before another attempt is weighed (a trim that brings it in saves one).
-            tried[-1], trim = trim_repair(problem, tried[-1], rng, attempt, end)
+            tried[-1], trim = trim_repair(problem, tried[-1], stream("trim", attempt), attempt, end)
             if trim is not None:
                 tried[-1].phases.append(trim)
         if not tried[-1].another(problem, clock()):
@@ -543,11 +567,12 @@ def optimize(
     chosen = max(range(len(tried)), key=lambda i: tried[i].key(problem))  # the first of equals
     cover_note = "the attempt with toe rows first is not made with --keep" if cover and keep else None
     if cover and not keep:
-        chosen, cover_note = covered_attempts(problem, strategies_run, tried, chosen, rng, settle_layout, end)
+        chosen, cover_note = covered_attempts(problem, strategies_run, tried, chosen, stream, settle_layout,
+                                              end)
     best, moves = tried[chosen], None
     if cover and settle_layout:
         # The attempts keep their own figures (the attempts phase); the repaired layout is written.
-        best, moves = repair_once(problem, best, rng, chosen + 1, end)
+        best, moves = repair_once(problem, best, stream("cover", chosen + 1), chosen + 1, end)
     if moves and moves["moved"] and moves["stood"]:
         n = moves["moved"]
         moved = (f"moving {n} {'block that' if n == 1 else 'blocks that'} carried nothing to bare areas "
@@ -683,7 +708,7 @@ def _without_fill(phases: list[dict[str, Any]]) -> str | None:
 #: Searches a run may make: when one ends short of the required count (or with a layout that
 #: does not stand) with the time its search took still left before the deadline
 #: (:meth:`_Attempt.another`), the pipeline runs again
-#: from the start on the same random stream, and the best layout of all is kept. The first
+#: from the start on a stream of its own (:func:`streams`), and the best layout of all is kept. The first
 #: attempt is the whole run wherever the count is reached.
 ATTEMPTS = 3
 
@@ -833,12 +858,13 @@ COVER_ATTEMPTS = 2
 
 
 def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
-                     rng: np.random.Generator, settle_layout: bool, end: float) -> tuple[int, str | None]:
+                     stream: Streams, settle_layout: bool, end: float) -> tuple[int, str | None]:
     """:func:`covered_attempt`, and again while the layout kept still misses a coverage aim and
     the last attempt's time is left, up to ``COVER_ATTEMPTS`` in all. An attempt kept is
     repaired (:func:`cover_repair`) before the next is weighed, which it then has to beat.
 
-    Each draws its pattern origins anew from the random stream, and around the rows one origin
+    Each draws its pattern origins anew from a stream of its own (``stream("rows", n)``, its trim
+    and covering moves from ``"rows trim"`` and ``"rows cover"``), and around the rows one origin
     reaches the count where another does not. Without it the time left after one attempt was
     spent on nothing: in a trial of another toe-row hanging (not kept), ``mini`` seed 2 was done
     at 49 s of its 120 with 6.2 % bare (2026-11-27). Returns the
@@ -849,8 +875,8 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
     plain = tried[chosen]
     while made < COVER_ATTEMPTS:
         before, was, t0 = len(tried), chosen, problem.now()
-        chosen, words = covered_attempt(problem, strategies, tried, chosen, rng, settle_layout, end,
-                                        needs=took, without=without)
+        chosen, words = covered_attempt(problem, strategies, tried, chosen, stream, settle_layout, end,
+                                        needs=took, without=without, number=made + 1)
         took = problem.now() - t0  # its trim too
         if len(tried) == before:  # none made: covered, or no time left for one
             if not made:
@@ -865,7 +891,8 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
                 # an aim narrowly is often covered by a move or two, where another attempt takes
                 # as long as this one (mini seed 3: 5.99 -> 4.90 % bare in one move of 6 s, against
                 # 57 s for an attempt that then came to 57.09 %, over the window).
-                tried[chosen], _ = repair_once(problem, tried[chosen], rng, chosen + 1, end)
+                tried[chosen], _ = repair_once(problem, tried[chosen], stream("rows cover", made), chosen + 1,
+                                               end)
         # A second attempt kept says how bare the layout without rows was, not the first one with rows.
         without = plain.coverage.bare_share_percent if plain.coverage is not None else None
     note = kept_note if kept_note is not None else note
@@ -875,8 +902,9 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
 
 
 def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
-                    rng: np.random.Generator, settle_layout: bool, end: float,
-                    needs: float | None = None, without: float | None = None) -> tuple[int, str | None]:
+                    stream: Streams, settle_layout: bool, end: float,
+                    needs: float | None = None, without: float | None = None, number: int = 1
+                    ) -> tuple[int, str | None]:
     """One more attempt, with rows along the toes first, where the chosen one leaves the mound bare.
 
     Only when the chosen attempt reaches its count and porosity and misses
@@ -898,7 +926,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     ``needs`` is the time the attempt is expected to take (at least the
     chosen attempt's; :func:`covered_attempts` gives the last one's), and
     ``without`` the bare share (percent) of the layout without rows, where
-    the chosen one has them.
+    the chosen one has them. ``number`` counts the attempts with rows: the
+    attempt draws from ``stream("rows", number)``, its trim from
+    ``stream("rows trim", number)`` (:func:`streams`).
     Appends the attempt to ``tried`` and returns the index of the one to
     keep, the new one if it reaches its count and porosity too and covers
     better, with what came of it in words (None where the layout covers).
@@ -923,8 +953,8 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         return chosen, f"no time was left for an attempt with toe rows first (about {needs:.0f} s)"
     again = [ToeRows()] + [
         s.around_laid().against_wall().covering() if isinstance(s, BeamSearch) else s for s in strategies]
-    tried.append(_attempt(problem, again, scene, (), rng, settle_layout, end, len(tried) + 1,
-                          all_or_nothing=True))
+    tried.append(_attempt(problem, again, scene, (), stream("rows", number), settle_layout, end,
+                          len(tried) + 1, all_or_nothing=True))
     new = tried[-1]
     what = "an attempt with toe rows first"
     if (new.searched or 0) >= problem.required > len(new.build):
@@ -960,7 +990,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             # point went from 1.50 to 1.78 m, over H, and what the rows had won was lost.
             aims = new.coverage.aims_met()
             keeps = [better(aims), better(0)] if aims else [better(0)]
-            trimmed, phase = trim_repair(problem, new, rng, len(tried), end, keeps)
+            trimmed, phase = trim_repair(problem, new, stream("rows trim", number), len(tried), end, keeps)
             if phase is not None:
                 new.phases.append(phase)
             adopted = trimmed is not new

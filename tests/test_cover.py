@@ -286,8 +286,8 @@ def test_an_attempt_with_rows_settled_past_the_search_deadline_is_measured_and_k
 
     monkeypatch.setattr(api, "_attempt", settled_late)
     tried = [best]
-    chosen, words = api.covered_attempt(pr, api.default_strategies(), tried, 0, np.random.default_rng(1),
-                                        True, pr.deadline + 20.0)
+    chosen, words = api.covered_attempt(pr, api.default_strategies(), tried, 0,
+                                        lambda step, n: np.random.default_rng(1), True, pr.deadline + 20.0)
     assert chosen == 1, words
     assert tried[1].coverage.bare_share_percent == pytest.approx(measured.bare_share_percent, abs=1e-9)
 

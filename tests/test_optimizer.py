@@ -806,8 +806,38 @@ def test_a_run_short_of_its_count_tries_again_and_keeps_the_best(tiny):
     assert summary["chosen"] == best + 1
     assert r.blocks == counts[best] and r.porosity_percent == pytest.approx(porosities[best], abs=1e-6)
     assert r.collisions == 0 and r.out_of_tolerance == 0 and r.stable is True
-    # The attempts are not copies of one another: each drew on the stream where the last one stopped.
+    # The attempts are not copies of one another: each drew on a stream of its own.
     assert len({round(p, 9) for p in porosities}) > 1 or len(set(counts)) > 1
+
+
+def test_an_attempt_draws_the_same_however_much_the_one_before_it_drew(tiny):
+    """Each attempt draws from a stream of its own (``api.streams``): what an attempt before it
+    drew, more where its time let it search longer, does not change the next one's draws. A
+    stand-in strategy places nothing, so every attempt ends short with its time left, and
+    records its first draws; the first attempt draws 0 or 1000 numbers more."""
+    from optimizer.api import ATTEMPTS
+    from optimizer.search.problem import Strategy
+
+    class Draws(Strategy):
+        name = "draws"
+
+        def __init__(self, extra):
+            self.extra, self.first = extra, []
+
+        def run(self, problem_, previous, rng):
+            self.first.append(rng.random(3).tolist())
+            if len(self.first) == 1:
+                rng.random(self.extra)
+            return previous if previous is not None else Phase(Build(problem_.scene))
+
+    runs = []
+    for extra in (0, 1000):
+        draws = Draws(extra)
+        optimize(tiny, seed=4, time_limit=60, strategies=[draws], settle_layout=False, cover=False)
+        runs.append(draws.first)
+    assert ATTEMPTS > 1 and len(runs[0]) == len(runs[1]) == ATTEMPTS
+    assert runs[0] == runs[1]
+    assert len({tuple(d) for d in runs[0]}) == ATTEMPTS  # and the attempts' streams differ
 
 
 def test_another_attempt_needs_only_the_last_ones_search_time(tiny):
@@ -1202,7 +1232,8 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
     plain = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=15.0), seconds=1.0, phases=[])
     tried = [plain]
 
-    def stand_in(problem_, strategies, tried_, chosen, rng, settle_layout, end, needs=None, without=None):
+    def stand_in(problem_, strategies, tried_, chosen, stream, settle_layout, end, needs=None, without=None,
+                 number=1):
         calls.append(without)
         events.append(("attempt", tried_[chosen].coverage.bare_share_percent))
         keep = kept[len(calls) - 1]
@@ -1220,7 +1251,8 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
 
     monkeypatch.setattr(api, "covered_attempt", stand_in)
     monkeypatch.setattr(api, "cover_repair", repair)
-    chosen, words = api.covered_attempts(SimpleNamespace(now=lambda: 0.0), [], tried, 0, None, True, 0.0)
+    chosen, words = api.covered_attempts(SimpleNamespace(now=lambda: 0.0), [], tried, 0, lambda step, n: None,
+                                         True, 0.0)
     assert len(tried) == 1 + made
     # The kept attempts' repairs, each before the next attempt, which is weighed against it.
     expected_events = {(True, True): [("attempt", 15.0), ("repair", 2), ("attempt", 7.0), ("repair", 3)],

@@ -278,8 +278,9 @@ def test_the_coverage_attempt_keeps_the_report_of_the_very_layout_it_keeps(monke
     monkeypatch.setattr(api, "_attempt", lambda *args, **kwargs: api._Attempt(
         rows.copy(), [], {}, {"stable": True}, True, searched=len(rows)))
     tried = [best]
-    chosen, words = api.covered_attempt(p, api.default_strategies(), tried, 0, np.random.default_rng(stream),
-                                        True, p.deadline + 30.0)
+    chosen, words = api.covered_attempt(p, api.default_strategies(), tried, 0,
+                                        lambda step, n: np.random.default_rng(stream), True,
+                                        p.deadline + 30.0)
     new = tried[-1]
     trim_phase = next(ph for ph in new.phases if ph["strategy"] == "trim")
     assert trim_phase["moved"] > 0 and trim_phase["stood"] is True, "a trim kept, for the test to mean it"
