@@ -751,9 +751,10 @@ def main(argv: list[str] | None = None) -> None:  # pragma: no cover - a mainten
                          maxiter=int(args[2]) if len(args) > 2 else 40)
         tops = upper_tops(first_layer(lat, block), block, lat, lat.upper)  # type: ignore[arg-type]
         print(f"upper layer tops {tops[0]:.4f} m and {tops[1]:.4f} m at H = {block.height:.4f} m")  # noqa: T201
+        cache_lattice(block, lat)
     else:
-        lat = tune_lattice(block, seed=seed, maxiter=int(args[2]) if len(args) > 2 else 300)
-    cache_lattice(block, lat)
+        lat, tuning = tune(block, seed=seed, maxiter=int(args[2]) if len(args) > 2 else 300)
+        cache_lattice(block, lat, tuning)  # with its generations, as ``shoha block tune`` keeps it
     scaled = asdict(lat.scaled(1.0 / block.height))
     print(json.dumps({name: scaled}, indent=1))  # noqa: T201
     print(f"area per block {lat.area_per_block:.4f} m^2 at H = {block.height:.4f} m")  # noqa: T201
