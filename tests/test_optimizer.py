@@ -1228,6 +1228,7 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
 
     import optimizer.api as api
 
+    monkeypatch.setattr(api, "COVER_ATTEMPTS", 2)  # as many as the stand-in's cases make
     calls, events = [], []
     plain = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=15.0), seconds=1.0, phases=[])
     tried = [plain]

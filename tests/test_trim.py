@@ -96,18 +96,29 @@ def test_a_trimmed_layout_is_written_only_once_it_stands(rough):
     assert attempt.build is build  # the attempt keeps its own layout
 
 
-def test_a_trim_that_ends_short_of_the_window_is_kept_if_it_stands(rough, monkeypatch):
-    """Cut short (one move here, of the two the window needs), the trimmed layout is still
-    nearer the target than the attempt: it replaces the attempt once it stands, and another
-    attempt may then bring the porosity into the window."""
+def test_a_trim_that_ends_short_of_the_window_is_kept_and_trimmed_again_from_it(rough, monkeypatch):
+    """Cut short (one move a trim here, of the two the window needs), the trimmed layout is
+    still nearer the target than the attempt: it replaces the attempt once it stands, and the
+    second trim starts from it, not from the untrimmed layout. The phase tells of the layout
+    kept: every move kept, from the untrimmed porosity."""
     scene, build = rough
     monkeypatch.setattr(trim, "MOVES", 1)
+    starts, real = [], api.trim_moves
+
+    def from_where(problem_, start, *args, **kwargs):
+        starts.append(start.porosity.percent)
+        return real(problem_, start, *args, **kwargs)
+
+    monkeypatch.setattr(api, "trim_moves", from_where)
     p = problem(scene, seconds=120.0)
     attempt = api._Attempt(build, [], {}, {"stable": True}, True)
     kept, phase = api.trim_repair(p, attempt, np.random.default_rng(1), 1, p.deadline + 30.0)
-    assert phase["moved"] == 1 and phase["stood"] is True and kept is not attempt
-    assert trim.over(p, kept.build) > 0 and kept.build.porosity.percent < build.porosity.percent
-    assert kept.key(p) > attempt.key(p) and not kept.on_target(p)
+    assert phase["tries"] == 2 and len(starts) == 2
+    assert starts[0] == build.porosity.percent and trim.over(p, build) > starts[0] - starts[1] > 0
+    assert phase["moved"] == 2 and phase["stood"] is True and kept is not attempt
+    assert phase["porosity_before_percent"] == build.porosity.percent
+    assert phase["porosity_percent"] == kept.build.porosity.percent < starts[1]
+    assert kept.key(p) > attempt.key(p) and kept.stable is True
 
 
 def _moved(before: Build, after: Build) -> set[int]:
