@@ -789,7 +789,7 @@ def test_the_coverage_attempts_give_one_layout_a_seed(tiny, light_tiny_1):
 
 def test_a_run_short_of_its_count_tries_again_and_keeps_the_best(tiny):
     """More blocks asked of the slice than fit: every attempt ends short with its time left, so
-    the pipeline runs ``ATTEMPTS`` times on the seed's stream and returns the best layout."""
+    the pipeline runs ``ATTEMPTS`` times, each on a stream of its own, and returns the best layout."""
     from optimizer.api import ATTEMPTS
 
     scene = replace(tiny, required_blocks=2 * tiny.required_blocks)
