@@ -1148,22 +1148,18 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
         trimmed, stats = trim_moves(short, kept.build, raised_check, rng, keeps)
         took = clock() - t1
         phase["tries"] += 1
-        trial: dict[str, Any] = {"stood": None}
-        if stats.moved:
-            # Nearer the window if not within it: kept if it stands (or stands where its settle left it).
-            now = _settled_again(problem, kept, trimmed, rng, end, trial, coverage=None)
-        if stats.moved and now is not kept:
-            # The phase tells of the layout kept, from the untrimmed one: all the moves kept.
+        trial: dict[str, Any] = {"stood": None}  # ``adopted`` too, where so kept
+        # Nearer the window if not within it: kept if it stands (or stands where its settle left it).
+        now = _settled_again(problem, kept, trimmed, rng, end, trial, coverage=None) if stats.moved else kept
+        if now is not kept:
+            # The phase tells of the layout kept, from the untrimmed one: all the moves kept, and
+            # ``adopted`` once any of them was taken where its settle left it.
             moved += stats.moved
             kept = now
             phase.update({**stats.to_dict(), **trial, "blocks": len(kept.build), "moved": moved,
                           "porosity_before_percent": attempt.build.porosity.percent,
-                          "porosity_percent": kept.build.porosity.percent,  # where the settle left it
-                          "adopted": bool(phase.get("adopted") or trial.get("adopted"))})
-            if not phase["adopted"]:
-                del phase["adopted"]
+                          "porosity_percent": kept.build.porosity.percent})  # where the settle left it
         elif kept is attempt:  # none kept yet: the phase tells of this trim
-            phase.pop("adopted", None)
             phase.update(blocks=len(trimmed), **stats.to_dict(), **trial)
         if (not stats.moved or over(problem, kept.build) <= 0 or trial["stood"] is None
                 or clock() + took > short.deadline
