@@ -160,9 +160,54 @@ def test_no_more_than_groups_of_blocks_are_tried_for_a_move(mini_reference, monk
         asked.append(key)
 
     monkeypatch.setattr(cover, "_best_for", none)
+    monkeypatch.setattr(cover, "_far_move", lambda *args: None)  # tested on its own below
     moved, _, stats = cover.cover_moves(problem(scene), build, coverage(scene, build.placed()))
     assert stats.moved == 0 and len(asked) == cover.GROUPS * cover.BLOCKS_TRIED < len(build.free_keys())
 
+
+
+
+COVERED = ROOT / "tests" / "data" / "mini-covered-seed1.json"
+
+
+def test_where_no_block_has_a_move_near_it_one_that_covers_nothing_goes_to_the_bare_area(monkeypatch):
+    """On the layout ``shoha optimize mini --seed 1`` wrote at 40443ab (6.19 % bare, its covering
+    moves done), no free block has a move near where it stands. Two ground-layer gaps at the
+    mound's ends lie under the bare seaward shoulder, and blocks under the crest with nothing on
+    them cover nothing the others do not. One far move: a block whose removal alone leaves the
+    bare share as it was goes into a gap, more than two bounding radii away, at the same count,
+    with the porosity in its window, nothing colliding or out of the zone, and the rest unmoved."""
+    scene = load_scene("mini")
+    build = Build(scene)
+    for p in read_layout(COVERED).blocks:
+        build.place_at(p.pose)
+    before = coverage(scene, build.placed())
+    monkeypatch.setattr(cover, "MOVES", 1)
+    far = []
+    real = cover._far_move
+
+    def watched(*args):
+        far.append(real(*args))
+        return far[-1]
+
+    monkeypatch.setattr(cover, "_far_move", watched)
+    moved, after, stats = cover.cover_moves(problem(scene), build, before)
+    assert len(far) == 1, "the local moves found one: this layout no longer tests the far move"
+    assert stats.moved == 1 and len(moved) == len(build) == 75
+    assert after.bare_share_percent < before.bare_share_percent - 0.3
+    assert after.bare_share_percent == pytest.approx(coverage(scene, moved.placed()).bare_share_percent)
+    assert abs(moved.porosity.percent - scene.target_porosity) <= 1.0
+    report = check_layout(scene, moved.placed())
+    assert not report.collisions and not report.out_of_tolerance
+    gone = [k for k in build.order if k not in moved.poses
+            or not np.array_equal(moved.poses[k].position, build.poses[k].position)]
+    assert len(gone) == 1 and gone[0] in build.free_keys()
+    key = gone[0]
+    without = coverage(scene, [p for p in build.placed() if p[0] != key])
+    assert without.bare_share_percent == pytest.approx(before.bare_share_percent, abs=1e-9)
+    (new,) = set(moved.order) - set(build.order)  # taken out and placed again: a key of its own
+    far_from = np.linalg.norm(moved.poses[new].position - build.poses[key].position)
+    assert far_from > 2 * scene.block.bounding_radius
 
 
 def test_toe_rows_are_laid_from_the_start_that_leaves_least_outside_the_prism(mini, monkeypatch):
