@@ -53,8 +53,8 @@ GROUPS = 3
 SETTLE_TOP = 6
 #: A far move (:func:`_far_move`): the places over the bare area let go at most, the most
 #: bare area covered by the bound first. Most places there are on a neighbour's shoulder,
-#: and do not rest: on ``mini`` seed 1 (the layout of tests/data/mini-covered-seed1.json), the
-#: 60 best let go found none, and the move that was kept came at the 121st. Set on that one case.
+#: and do not rest: on ``mini`` seed 1 (the layout of tests/data/mini-covered-seed1.json) none
+#: of the 60 best came to rest, and 121 were let go before ``SETTLE_TOP`` had. Set on that one case.
 FAR_CHECKS = 200
 #: Yaws per hanging, spread over its symmetry period.
 YAWS = 4
