@@ -56,9 +56,6 @@ SETTLE_TOP = 6
 #: and do not rest: on ``mini`` seed 1 (the layout of tests/data/mini-covered-seed1.json) none
 #: of the 60 best came to rest, and 121 were let go before ``SETTLE_TOP`` had. Set on that one case.
 FAR_CHECKS = 200
-#: For each place that comes to rest, the blocks to move measured: the cheapest that keep the
-#: porosity within its window.
-FAR_TAKEN = 3
 #: Yaws per hanging, spread over its symmetry period.
 YAWS = 4
 #: The grid of lowering nodes, in block heights: its step, and how far from where the
@@ -230,10 +227,8 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: Cov
     The places are the nodes of the pocket fill's sweep grid within reach of a bare sample,
     in each hanging at ``YAWS`` yaws, let go among their neighbours in order of the bare area
     they cover by the bound (at most ``FAR_CHECKS``, ``SETTLE_TOP`` that rest). The block moved
-    is, of the ``FAR_TAKEN`` free ones whose removal bares the least (then that hold the least
-    inside the prism) and that keep the porosity within its window, the one after whose move
-    the mound is covered best; it stands at least two bounding radii from the place, so it
-    holds nothing the new block rests on.
+    is the free one whose removal bares the least, then holds the least inside the prism, and
+    stands at least two bounding radii from the place (it holds nothing the new block rests on).
     Returns the new coverage, the block moved and where it goes; None if no move covers better
     with the porosity within its window.
     """
@@ -252,28 +247,24 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: Cov
     for _, _, c in places:
         if checks >= FAR_CHECKS or rested_n >= SETTLE_TOP or problem.time_left() <= 0:
             break
-        far = [(k, w) for _, _, k, w in cheap
-               if np.linalg.norm(build.poses[k].position - c.pose.position) >= 2 * block.bounding_radius]
-        if not far:
+        key = next((k for _, _, k, _ in cheap if np.linalg.norm(build.poses[k].position - c.pose.position)
+                    >= 2 * block.bounding_radius), None)
+        if key is None:
             continue
         checks += 1
         stats.tried += 1
-        rested = settle_in(problem, build, c)  # every block it might rest on stays
+        rested = settle_in(problem, build, c)
         if rested is None:
             continue
         rested_n += 1
-        # The cheapest blocks to move that keep the porosity within its window: at the window's
-        # top (``mini`` seed 1, 56.99 %) the cheapest of all may hold a little more inside than
-        # the place does, and one that bares a little more, less.
-        base = build.porosity.filled + rested.inside
-        fits = [(k, w) for k, w in far if abs(build.porosity.percent_with(
-            base - build.porosity.contribution(k)) - problem.target) <= TARGET_POINTS]
-        for key, without in fits[:FAR_TAKEN]:
-            others = [p for p in build.placed() if p[0] != key]
-            after = coverage_after(scene, others + [(key, block, rested.pose)], without,
-                                   [rested.pose.position])
-            if after.better_than(report) and (best is None or after.better_than(best[0])):
-                best = (after, key, rested)
+        filled = build.porosity.filled - build.porosity.contribution(key) + rested.inside
+        if abs(build.porosity.percent_with(filled) - problem.target) > TARGET_POINTS:
+            continue
+        without = next(w for _, _, k, w in cheap if k == key)
+        others = [p for p in build.placed() if p[0] != key]
+        after = coverage_after(scene, others + [(key, block, rested.pose)], without, [rested.pose.position])
+        if after.better_than(report) and (best is None or after.better_than(best[0])):
+            best = (after, key, rested)
     return best
 
 
