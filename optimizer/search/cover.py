@@ -37,7 +37,7 @@ from geometry.coverage import BARE_FRACTION, CoverageReport, block_samples, bloc
 from geometry.pose import Pose
 
 from .build import Build, Candidate
-from .fill import SWEEP_STEP
+from .fill import SWEEP_STEP, lowered
 from .hangings import spread_yaws
 from .physics import settle_in
 from .problem import TARGET_POINTS, Problem
@@ -247,8 +247,8 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: Cov
     for _, _, c in places:
         if checks >= FAR_CHECKS or rested_n >= SETTLE_TOP or problem.time_left() <= 0:
             break
-        key = next((k for _, _, k, _ in cheap if np.linalg.norm(build.poses[k].position - c.pose.position)
-                    >= 2 * block.bounding_radius), None)
+        key, without = next(((k, w) for _, _, k, w in cheap if np.linalg.norm(
+            build.poses[k].position - c.pose.position) >= 2 * block.bounding_radius), (None, None))
         if key is None:
             continue
         checks += 1
@@ -260,7 +260,6 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: Cov
         filled = build.porosity.filled - build.porosity.contribution(key) + rested.inside
         if abs(build.porosity.percent_with(filled) - problem.target) > TARGET_POINTS:
             continue
-        without = next(w for _, _, k, w in cheap if k == key)
         others = [p for p in build.placed() if p[0] != key]
         after = coverage_after(scene, others + [(key, block, rested.pose)], without, [rested.pose.position])
         if after.better_than(report) and (best is None or after.better_than(best[0])):
@@ -281,19 +280,10 @@ def _bare_places(problem: Problem, build: Build, bare: BareArea) -> list[tuple[f
     nodes = nodes[np.isfinite(d)]
     shapes = ShapeCache(block)
     hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(block, problem.families, YAWS)]
-    ranked = []
-    for x, y in nodes:
-        if problem.time_left() <= 0:
-            break
-        for shape in hung:
-            c = build.lower(shape, float(x), float(y))
-            if c is None:
-                continue
-            gain = bare.covered(c.pose)
-            if gain > 0:
-                ranked.append((-gain, len(ranked), c))
-    ranked.sort(key=lambda t: t[:2])
-    return ranked
+    found, _, _ = lowered(problem, build, hung, nodes, problem.deadline)
+    gains = [bare.covered(c.pose) for c in found]
+    return sorted(((-g, i, c) for i, (g, c) in enumerate(zip(gains, found, strict=True)) if g > 0),
+                  key=lambda t: t[:2])
 
 
 def _cheapest(problem: Problem, build: Build, report: CoverageReport

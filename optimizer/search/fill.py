@@ -294,10 +294,19 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
         nodes = nodes[~near if beyond else near]
     nodes = nodes[rng.permutation(len(nodes))]
     hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(shapes.block, problem.families, SWEEP_YAWS)]
-    if not hung:  # only free turns: no hanging to sweep
-        return [], 0, True
+    return lowered(problem, build, hung, nodes, stop)
+
+
+def lowered(problem: Problem, build: Build, hung: list, nodes: np.ndarray, stop: float
+            ) -> tuple[list[Candidate], int, bool]:
+    """Each shape of ``hung`` lowered at each of ``nodes`` (n, 2), in that order: the candidates
+    valid as lowered (not loose), the drops lowered, and whether every node was lowered at before
+    ``stop`` (``problem.now()``). Places :meth:`Build.clear_of_ceiling` refuses are not lowered:
+    :meth:`Build.lower` would refuse them too."""
     found: list[Candidate] = []
     drops = 0
+    if not hung or not len(nodes):  # only free turns: no hanging to lower
+        return found, drops, True
     # In chunks, so that a mound kilometres long is tested as the clock allows, not all at once.
     for chunk in np.array_split(nodes, max(1, len(nodes) // SWEEP_CHUNK)):
         if problem.now() > stop:
