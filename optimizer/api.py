@@ -528,6 +528,7 @@ def optimize(
         lattice=lattice,
         families=families(scene.block),
         deadline=start + time_limit - reserve,
+        span=time_limit - reserve,
         report=report,
         clock=clock,
         meter=SettleMeter(earliest=start + (1.0 - RESERVE_SHARE) * time_limit),

@@ -773,6 +773,32 @@ def test_beam_restarts_go_on_while_a_full_layout_misses_the_target(tiny, near, s
     assert phase.stats.restarts == searches
 
 
+def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
+    """How many origins the beam ranks follows from the run's span, not from the time left: a
+    beam started with a fifth of the span left (after slow steps) ranks as many, and lays the
+    same layout, as one started at once. The clock stands still, so no deadline binds."""
+    from optimizer.search import beam as beam_module
+
+    ranked: list[int] = []
+    real = beam_module.rank_origins
+
+    def counted(*args, **kwargs):
+        ranked.append(args[7])  # the origins on a scan along the crest
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(beam_module, "rank_origins", counted)
+    still = problem(tiny, clock=lambda: 0.0)
+    early = replace(still, deadline=100.0, span=100.0)
+    late = replace(still, deadline=20.0, span=100.0)
+    layouts = [BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1)).build.layout({}).dumps()
+               for pr in (early, late)]
+    assert ranked[0] == ranked[1] == BeamSearch().scan_origins
+    assert layouts[0] == layouts[1]
+    # Without a span the time left is what there is to plan for: fewer origins late in a run.
+    BeamSearch(restarts=1, origins=3).run(replace(late, span=None), None, np.random.default_rng(1))
+    assert ranked[2] < ranked[0]
+
+
 def test_same_seed_same_layout_different_seed_different(tiny, plain_tiny_1):
     """The pipeline gives one layout a seed, and another seed gives another (without the
     coverage attempts, which take most of a run on ``tiny``: with them, the next test)."""

@@ -160,14 +160,18 @@ class BeamSearch(Strategy):
         in turn (:func:`rank_origins`).
     scan_origins : int
         Origins on a scan along the crest (half as many across it), for
-        scenes of up to 100 blocks and a beam budget of at least
+        scenes of up to 100 blocks and a planned beam budget of at least
         ``RANK_SECONDS``; fewer for larger scenes (``* 100 / required``) and
-        shorter budgets (``* budget / RANK_SECONDS``), at least 4. The count
-        follows from the scene and the time limit, not from the machine's
-        speed, so that a seed gives one layout. The ranking stops at 70 % of
-        the beam's time (15 % under a budget short of ``RANK_SECONDS``), so
-        that a slow machine keeps time for the search; only then does the
-        machine's speed change the layout. On 2 cores ``tetrapod``'s 50
+        shorter budgets (``* budget / RANK_SECONDS``), at least 4. The budget
+        planned is ``share`` of the run's span (:meth:`Problem.budget`), not
+        of the time left: the count follows from the scene and the time
+        limit, not from the machine's speed or the steps before, so that a
+        seed gives one layout. (Until stop 69 it was a share of the time
+        left, and an attempt made after a slow step ranked fewer origins.)
+        The ranking stops at 70 % of the beam's time left (15 % where the
+        planned budget is short of ``RANK_SECONDS``), so that a slow machine
+        keeps time for the search; only then does the machine's speed change
+        the layout. On 2 cores ``tetrapod``'s 50
         trials take 24 to 44 s of the beam's 82 s at the default 120 s limit
         (the same machine on different days); a 40 % cap cut them (48 in one
         run), and runs of one seed gave different layouts. At 70 % (57 s) the
@@ -317,13 +321,15 @@ class BeamSearch(Strategy):
         if self.origin is not None:
             origins = [self.origin]
         else:
-            # Fewer trials for long scenes and short budgets. Under a short budget the
-            # search itself needs the time: the ranking keeps to 15 % of it. Otherwise the
-            # cap is a guard for slow machines, not a limit that binds (see scan_origins).
-            budget = end - t0
+            # Fewer trials for long scenes and short limits: how many follows from the run's
+            # span (Problem.budget), not from the time left, so that an attempt made after a
+            # slow step ranks as many. Under a short limit the search itself needs the time:
+            # the ranking keeps to 15 % of the beam's time. Otherwise the cap is a guard for
+            # slow machines, not a limit that binds (see scan_origins).
+            budget, planned = end - t0, problem.budget(self.share)
             n = max(4, round(self.scan_origins * min(1.0, 100 / max(problem.required, 1))
-                             * min(1.0, budget / RANK_SECONDS)))
-            cap = t0 + (0.7 if budget >= RANK_SECONDS else 0.15) * budget
+                             * min(1.0, planned / RANK_SECONDS)))
+            cap = t0 + (0.7 if planned >= RANK_SECONDS else 0.15) * budget
             counts: dict[tuple[float, ...], int] = {}  # the quick passes' blocks, laid once
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n,
                                    self._laid(start), counts)

@@ -99,6 +99,12 @@ class Problem:
     settle_until : float, optional
         Clock value past which a whole-layout settle is stopped (:class:`settle.Stopped`):
         set by the confirming settles, which must end within the time limit.
+    span : float, seconds, optional
+        How long the whole search may take: from the run's start to its first ``deadline``,
+        fixed when the run begins (``optimizer.api.optimize``: the time limit less what the
+        checks and settles keep). How much work a step does is a share of it, not of the time
+        left (:meth:`budget`), so that a step made after a slow one does the same work; only
+        a deadline that binds cuts it short. None: the time left.
     """
 
     scene: Scene
@@ -111,12 +117,18 @@ class Problem:
     clock: Clock = time.monotonic
     meter: SettleMeter = field(default_factory=SettleMeter, compare=False)
     settle_until: float | None = None
+    span: float | None = None
 
     def now(self) -> float:
         return self.clock()
 
     def time_left(self) -> float:
         return self.deadline - self.clock()
+
+    def budget(self, share: float) -> float:
+        """Seconds of work a step may plan for: ``share`` of ``span``, or of the time left
+        where no span is set. Not a deadline: the step still stops at ``deadline``."""
+        return share * max(0.0, self.time_left() if self.span is None else self.span)
 
     def coverage(self, placed: Placed, until: float | None = None) -> CoverageReport | None:
         """The coverage of ``placed`` (:func:`geometry.coverage.coverage`), or None if it is not
