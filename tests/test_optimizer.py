@@ -790,8 +790,8 @@ def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
     still = problem(tiny, clock=lambda: 0.0)
     early = replace(still, deadline=100.0, span=100.0)
     late = replace(still, deadline=20.0, span=100.0)
-    layouts = [BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1)).build.layout({}).dumps()
-               for pr in (early, late)]
+    runs = [BeamSearch(restarts=1, origins=3).run(pr, None, np.random.default_rng(1)) for pr in (early, late)]
+    layouts = [run.build.layout({}).dumps() for run in runs]
     assert ranked[0] == ranked[1] == BeamSearch().scan_origins
     assert layouts[0] == layouts[1]
     # Without a span the time left is what there is to plan for: fewer origins late in a run.
