@@ -176,23 +176,21 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
     bare = BareArea(without, scene.block)
     x0, y0 = build.poses[key].position[:2]
     filled = build.porosity.filled - build.porosity.contribution(key)
+    z0 = build.poses[key].position[2]
+    nodes = np.array([(x0 + dx, y0 + dy) for dx, dy in offsets
+                      if bare.near(np.array([x0 + dx, y0 + dy, z0]), bare.reach + scene.block.height) > 0])
+    # The pocket fill's lowering loop, which skips at once the places the zone's ceiling refuses.
+    found, _, done = lowered(problem, build, hung, nodes.reshape(-1, 2), problem.deadline,
+                             exclude=frozenset({key}))
+    if not done:
+        return None
     ranked = []
-    gone = frozenset({key})
-    for dx, dy in offsets:
-        if problem.time_left() <= 0:
-            return None
-        x, y = float(x0 + dx), float(y0 + dy)
-        if bare.near(np.array([x, y, build.poses[key].position[2]]), bare.reach + scene.block.height) <= 0:
+    for c in found:
+        if abs(build.porosity.percent_with(filled + c.inside) - problem.target) > TARGET_POINTS:
             continue
-        for shape in hung:
-            c = build.lower(shape, x, y, exclude=gone)
-            if c is None:
-                continue
-            if abs(build.porosity.percent_with(filled + c.inside) - problem.target) > TARGET_POINTS:
-                continue
-            gain = bare.covered(c.pose)
-            if gain > 0:
-                ranked.append((gain, len(ranked), c))
+        gain = bare.covered(c.pose)
+        if gain > 0:
+            ranked.append((gain, len(ranked), c))
     ranked.sort(key=lambda t: (-t[0], t[1]))
     best: tuple[CoverageReport, Candidate] | None = None
     build.collide.remove(key)  # the block does not hold up its own new pose

@@ -297,12 +297,13 @@ def sweep(problem: Problem, build: Build, shapes: ShapeCache,
     return lowered(problem, build, hung, nodes, stop)
 
 
-def lowered(problem: Problem, build: Build, hung: list, nodes: np.ndarray, stop: float
-            ) -> tuple[list[Candidate], int, bool]:
-    """Each shape of ``hung`` lowered at each of ``nodes`` (n, 2), in that order: the candidates
-    valid as lowered (not loose), the drops lowered, and whether every node was lowered at before
-    ``stop`` (``problem.now()``). Places :meth:`Build.clear_of_ceiling` refuses are not lowered:
-    :meth:`Build.lower` would refuse them too."""
+def lowered(problem: Problem, build: Build, hung: list, nodes: np.ndarray, stop: float,
+            exclude: frozenset[int] = frozenset()) -> tuple[list[Candidate], int, bool]:
+    """Each shape of ``hung`` lowered at each of ``nodes`` (n, 2), in that order, with the blocks
+    ``exclude`` left out (:meth:`Build.lower`): the candidates valid as lowered (not loose), the
+    drops lowered, and whether every node was lowered at before ``stop`` (``problem.now()``).
+    Places :meth:`Build.clear_of_ceiling` refuses are not lowered: :meth:`Build.lower` would
+    refuse them too."""
     found: list[Candidate] = []
     drops = 0
     if not hung or not len(nodes):  # only free turns: no hanging to lower
@@ -319,7 +320,7 @@ def lowered(problem: Problem, build: Build, hung: list, nodes: np.ndarray, stop:
                 if not ok:
                     continue
                 drops += 1
-                c = build.lower(shape, float(x), float(y))
+                c = build.lower(shape, float(x), float(y), exclude=exclude)
                 if c is not None:
                     found.append(c)
     return found, drops, True
