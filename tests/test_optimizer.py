@@ -783,7 +783,7 @@ def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
     real = beam_module.rank_origins
 
     def counted(*args, **kwargs):
-        ranked.append(args[7])  # the origins on a scan along the crest
+        ranked.append(kwargs.get("n", args[7] if len(args) > 7 else None))  # origins on a scan
         return real(*args, **kwargs)
 
     monkeypatch.setattr(beam_module, "rank_origins", counted)
@@ -797,6 +797,25 @@ def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
     # Without a span the time left is what there is to plan for: fewer origins late in a run.
     BeamSearch(restarts=1, origins=3).run(replace(late, span=None), None, np.random.default_rng(1))
     assert ranked[2] < ranked[0]
+
+
+def test_the_settles_repair_plans_its_ranking_from_its_own_time(tiny, monkeypatch):
+    """The confirming settle's repair beam has a short deadline of its own: it ranks as few
+    origins as that time asks, not as many as the whole run's span would."""
+    from optimizer.search import beam as beam_module
+    from optimizer.search import physics
+
+    ranked: list[int] = []
+    real = beam_module.rank_origins
+
+    def counted(*args, **kwargs):
+        ranked.append(kwargs.get("n", args[7] if len(args) > 7 else None))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(beam_module, "rank_origins", counted)
+    still = replace(problem(tiny, clock=lambda: 0.0), deadline=600.0, span=600.0)
+    physics._repaired(still, Build(tiny), None, 6.0, np.random.default_rng(1))
+    assert ranked == [4]  # 16 origins for a 3 s plan is cut to the least, 4
 
 
 def test_same_seed_same_layout_different_seed_different(tiny, plain_tiny_1):

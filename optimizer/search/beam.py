@@ -162,7 +162,7 @@ class BeamSearch(Strategy):
         Origins on a scan along the crest (half as many across it), for
         scenes of up to 100 blocks and a planned beam budget of at least
         ``RANK_SECONDS``; fewer for larger scenes (``* 100 / required``) and
-        shorter budgets (``* budget / RANK_SECONDS``), at least 4. The budget
+        shorter planned budgets (``* planned / RANK_SECONDS``), at least 4. The budget
         planned is ``share`` of the run's span (:meth:`Problem.budget`), not
         of the time left: the count follows from the scene and the time
         limit, not from the machine's speed or the steps before, so that a
@@ -171,7 +171,11 @@ class BeamSearch(Strategy):
         The ranking stops at 70 % of the beam's time left (15 % where the
         planned budget is short of ``RANK_SECONDS``), so that a slow machine
         keeps time for the search; only then does the machine's speed change
-        the layout. On 2 cores ``tetrapod``'s 50
+        the layout. The share is chosen by the planned budget too: an attempt
+        made late in a run, with less time left, ranks as many origins, and
+        if the ranking takes most of its time its search has what is left
+        (with 15 % of a short time left, the cap would cut the ranking, and
+        the machine's speed would pick the origins). On 2 cores ``tetrapod``'s 50
         trials take 24 to 44 s of the beam's 82 s at the default 120 s limit
         (the same machine on different days); a 40 % cap cut them (48 in one
         run), and runs of one seed gave different layouts. At 70 % (57 s) the

@@ -295,9 +295,10 @@ def within(zone: ConvexPolytope, block: Block, pose: Pose) -> Pose:
 def _repaired(problem: Problem, build: Build, origin: tuple[float, float] | None, deadline: float,
               rng: np.random.Generator) -> Build:
     """``build`` with the pattern's free sites laid again by a narrow beam under the local check,
-    until ``deadline`` (a ``problem.now()`` value) at the latest."""
+    until ``deadline`` (a ``problem.now()`` value) at the latest. The repair plans its work from
+    the time it has (no ``span``), not from the whole run's."""
     beam = BeamSearch(width=2, accept=local_check, origin=origin, restarts=1, share=0.5)
-    return beam.run(replace(problem, deadline=deadline), Phase(build, origin=origin), rng).build
+    return beam.run(replace(problem, deadline=deadline, span=None), Phase(build, origin=origin), rng).build
 
 
 def _repair_fits(rounds: int, left: float, cost: float) -> bool:

@@ -102,9 +102,11 @@ class Problem:
     span : float, seconds, optional
         How long the whole search may take: from the run's start to its first ``deadline``,
         fixed when the run begins (``optimizer.api.optimize``: the time limit less what the
-        checks and settles keep). How much work a step does is a share of it, not of the time
-        left (:meth:`budget`), so that a step made after a slow one does the same work; only
-        a deadline that binds cuts it short. None: the time left.
+        checks and settles keep). The beam plans how many pattern origins it ranks from a
+        share of it, not of the time left (:meth:`budget`), so that an attempt made after a
+        slow step does the same work; only a deadline that binds cuts it short. None: the
+        time left. A problem given a short deadline of its own for a step inside the run (the
+        confirming settle's repair, ``physics._repaired``) clears it.
     """
 
     scene: Scene
