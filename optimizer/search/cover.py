@@ -153,7 +153,7 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
         if best is None:
             # No block has a move near where it stands: one that covers nothing may go where
             # the bare area is, however far.
-            best = _far_move(problem, build, report, stats)
+            best = _far_move(problem, build, report, hung, stats)
         if best is None:
             break
         report, key, c = best
@@ -174,9 +174,8 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
     without = coverage_after(scene, others, report, [build.poses[key].position])
     measuring = problem.now() - t0  # what one more exact coverage costs
     bare = BareArea(without, scene.block)
-    x0, y0 = build.poses[key].position[:2]
+    x0, y0, z0 = build.poses[key].position
     filled = build.porosity.filled - build.porosity.contribution(key)
-    z0 = build.poses[key].position[2]
     nodes = np.array([(x0 + dx, y0 + dy) for dx, dy in offsets
                       if bare.near(np.array([x0 + dx, y0 + dy, z0]), bare.reach + scene.block.height) > 0])
     # The pocket fill's lowering loop, which skips at once the places the zone's ceiling refuses.
@@ -212,7 +211,7 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
     return best
 
 
-def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: CoverStats
+def _far_move(problem: Problem, build: Build, report: CoverageReport, hung: list, stats: CoverStats
               ) -> tuple[CoverageReport, int, Candidate] | None:
     """A free block that covers little or nothing moved to where the mound is bare, however far.
 
@@ -222,19 +221,18 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: Cov
     the crest, with nothing on them, covered nothing the others did not (their removal left the
     bare share as it was). Such a block moved into a gap covers it at the same count.
 
-    The places are the nodes of the pocket fill's sweep grid within reach of a bare sample,
-    in each hanging at ``YAWS`` yaws, let go among their neighbours in order of the bare area
-    they cover by the bound (at most ``FAR_CHECKS``, ``SETTLE_TOP`` that rest). The block moved
-    is the free one whose removal bares the least, then holds the least inside the prism, and
-    stands at least two bounding radii from the place (it holds nothing the new block rests on).
-    Returns the new coverage, the block moved and where it goes; None if no move covers better
-    with the porosity within its window.
-    """
+    The places are the nodes of the pocket fill's sweep grid within reach of a bare sample, in
+    each hanging at ``YAWS`` yaws (``hung``, the local moves' own), let go among their
+    neighbours in order of the bare area they cover by the bound (at most ``FAR_CHECKS``,
+    ``SETTLE_TOP`` that rest). The block moved is the free one whose removal bares the least,
+    then holds the least inside the prism, and stands at least two bounding radii from the place
+    (it holds nothing the new block rests on). Returns the new coverage, the block moved and
+    where it goes; None if no move covers better with the porosity within its window.    """
     scene, block = problem.scene, problem.scene.block
     bare = BareArea(report, block)
     if bare.tree is None:
         return None
-    places = _bare_places(problem, build, bare)
+    places = _bare_places(problem, build, bare, hung)
     if not places:
         return None
     cheap = _cheapest(problem, build, report)
@@ -265,7 +263,8 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, stats: Cov
     return best
 
 
-def _bare_places(problem: Problem, build: Build, bare: BareArea) -> list[tuple[float, int, Candidate]]:
+def _bare_places(problem: Problem, build: Build, bare: BareArea, hung: list
+                 ) -> list[tuple[float, int, Candidate]]:
     """Blocks lowered at the sweep grid's nodes within reach of a bare sample (:func:`_far_move`),
     as (- bare area covered by the bound, order, candidate), most first."""
     block = problem.scene.block
@@ -276,8 +275,6 @@ def _bare_places(problem: Problem, build: Build, bare: BareArea) -> list[tuple[f
     nodes = np.array(np.meshgrid(xs, ys, indexing="ij")).reshape(2, -1).T
     d, _ = cKDTree(plan).query(nodes, distance_upper_bound=bare.reach)
     nodes = nodes[np.isfinite(d)]
-    shapes = ShapeCache(block)
-    hung = [shapes.hung(f, yaw) for f, yaw in spread_yaws(block, problem.families, YAWS)]
     found, _, _ = lowered(problem, build, hung, nodes, problem.deadline)
     gains = [bare.covered(c.pose) for c in found]
     return sorted(((-g, i, c) for i, (g, c) in enumerate(zip(gains, found, strict=True)) if g > 0),
