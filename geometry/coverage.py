@@ -29,6 +29,7 @@ the blocks that changed and gives the same figures (docs/coverage-study.md).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 import weakref
@@ -96,6 +97,19 @@ class SurfaceSamples:
     spacing: float
 
     FACES = ("seaward slope", "crest", "landward slope")
+
+    @functools.cached_property
+    def tree(self) -> cKDTree:
+        """A k-d tree of ``points``, built once (each covering move asked for one anew)."""
+        return quick_tree(self.points)
+
+
+def quick_tree(points: np.ndarray) -> cKDTree:
+    """A k-d tree built for one use: split at the sliding midpoint, its nodes left as they are.
+    Half the build time of the default (a tree of a layout's block samples, about 15 000 of
+    them, was built about eleven times a covering move: two thirds of its measures' time) for
+    the same exact answers, queried as fast."""
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
 def surface_samples(scene: Scene, spacing: float | None = None) -> SurfaceSamples:
@@ -363,7 +377,7 @@ def coverage_after(scene: Scene, placed: Placed, before: CoverageReport, changed
     own = _largest_radius(placed)
     radius = max(own, before.radius_m)
     reach = before.max_bare_m + radius + samples.spacing
-    tree = cKDTree(samples.points)
+    tree = samples.tree
     idx = np.unique(np.concatenate([np.asarray(tree.query_ball_point(c, reach), dtype=int) for c in changed]))
     dist = before.distance.copy()
     centres = np.array([pose.position for _, _, pose in placed])
@@ -391,7 +405,7 @@ def coverage_after(scene: Scene, placed: Placed, before: CoverageReport, changed
 
 def _near(placed: Placed, centres: np.ndarray, points: np.ndarray, reach: float) -> list:
     """The blocks whose centroids lie within ``reach`` of any of ``points``."""
-    hit = cKDTree(points).query_ball_point(centres, reach, return_length=True)
+    hit = quick_tree(points).query_ball_point(centres, reach, return_length=True)
     return [p for p, h in zip(placed, hit, strict=True) if h]
 
 
@@ -468,7 +482,7 @@ def _distances(pts: np.ndarray, placed: Placed, step: float, limit: float, exact
             check()
             clouds.append(pose.apply(block_samples(block, spacing[id(block)])))
         owner = np.repeat(np.arange(len(placed)), [len(c) for c in clouds])
-        tree = cKDTree(np.concatenate(clouds))
+        tree = quick_tree(np.concatenate(clouds))
         upper, nearest = np.empty(len(pts)), np.empty(len(pts), int)
         # In parts, the deadline read between them: 27 slender blocks (3.9 million samples)
         # against 240 000 surface points took one 32 s query.
