@@ -10,6 +10,7 @@ kept (on a clock that advances with the work done: tests/clock.py).
 
 from __future__ import annotations
 
+import math
 import time
 
 import fcl
@@ -443,7 +444,7 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     leaves over 5 % of the crest bare (a mound taller than two layers: big-shake's section, 12 m
     long), and
     then picks the largest spread whose quick pass still holds ``SPREAD_MARGIN`` over the
-    count, the next one tried holding less. On ``tiny`` (a slice of ``mini``) the count covers
+    count, the next one tried holding less from every origin, laid until nothing more fits. On ``tiny`` (a slice of ``mini``) the count covers
     the crest, and nothing is spread; nor where its time is up."""
     from dataclasses import replace as with_
 
@@ -456,7 +457,7 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     assert p.coverage(counted.placed()).by_face()["crest"] > 5.0, "the count leaves the crest bare"
     factor, held = sites.spread_to_count(p, shapes, p.now() + 120)
     need = p.required * (1 + sites.SPREAD_MARGIN)
-    assert factor > 1.0 and held >= need
+    assert factor > 1.0 and held == math.ceil(need)  # its passes stop at the count with the margin
     wider = [f for f in sites.SPREADS if f > factor]
     if wider:
         q = with_(p, lattice=p.lattice.scaled(wider[0]), required=10_000)
@@ -466,6 +467,34 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     assert sites.spread_to_count(p, shapes, p.now() - 1.0) == (1.0, None)
     own = problem(tiny)
     assert sites.spread_to_count(own, ShapeCache(tiny.block), own.now() + 60) == (1.0, None)
+
+
+def test_the_spread_choice_lays_no_pass_past_the_count_with_its_margin(tall, monkeypatch):
+    """The choice asks only whether a spread holds the count with the margin: no quick pass lays
+    more than that, and once one origin's pass holds it the other origins are not laid (every
+    pass was laid until nothing fitted, from every origin, until 2026-12-06). The choice itself
+    is checked against passes laid to the end by the test above."""
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+
+    p = problem(tall)
+    need = math.ceil(p.required * (1 + sites.SPREAD_MARGIN))
+    laid: dict[float, list[int]] = {}
+    real = sites.pattern_pass
+
+    def counted(q, *args, **kwargs):
+        b = real(q, *args, **kwargs)
+        if q.required != p.required:  # not the pass that asks whether the count covers the crest
+            laid.setdefault(round(q.lattice.w / p.lattice.w, 4), []).append(len(b))
+        return b
+
+    monkeypatch.setattr(sites, "pattern_pass", counted)
+    factor, held = sites.spread_to_count(p, ShapeCache(tall.block), p.now() + 120)
+    assert factor > 1.0 and laid[1.0] and laid[factor]
+    for passes in laid.values():
+        assert max(passes) <= need
+        assert need not in passes[:-1]  # the origins after the first that holds it are not laid
+    assert sum(len(v) for v in laid.values()) < sites.SPREAD_ORIGINS * len(laid)
 
 
 def test_a_spread_choice_cut_short_by_its_time_leaves_the_pattern_unspread(tall, monkeypatch):
