@@ -111,11 +111,13 @@ class BareArea:
         return float(self.area[near][np.isfinite(d)].sum())
 
 
-def cover_moves(problem: Problem, build: Build, report: CoverageReport
+def cover_moves(problem: Problem, build: Build, report: CoverageReport,
+                history: list[tuple[Build, CoverageReport]] | None = None
                 ) -> tuple[Build, CoverageReport, CoverStats]:
     """Move free blocks to bare areas while the coverage improves; returns a new build.
 
-    ``report`` is ``build``'s coverage. ``build`` is not changed.
+    ``report`` is ``build``'s coverage. ``build`` is not changed. ``history``, if given, gets
+    the layout after each move and its coverage (the caller may undo the last move).
     """
     block = problem.scene.block
     build = build.copy()
@@ -161,6 +163,8 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport
         build.place(c)
         stats.moved += 1
         stats.bare_share_percent = report.bare_share_percent
+        if history is not None:
+            history.append((build.copy(), report))
         problem.tell("cover", build, f"{stats.moved} moved, bare {report.bare_share_percent:.1f}%")
     return build, report, stats
 
