@@ -1093,8 +1093,8 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
         kept = _settled_again(problem, attempt, fewer, rng, end, phase, than=attempt.coverage,
                               coverage=report, unmoved=attempt.unmoved or attempt)
         if kept is not attempt:
-            phase.update(moved=stats.moved - 1, undone=1, blocks=len(fewer),
-                         porosity_percent=fewer.porosity.percent, bare_share_percent=report.bare_share_percent)
+            phase.update(moved=stats.moved - 1, undone=1, blocks=len(fewer), porosity_percent=fewer.porosity.percent,
+                         bare_share_percent=report.bare_share_percent)
     if kept is attempt:
         phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,
                      bare_share_percent=attempt.coverage.bare_share_percent)

@@ -444,8 +444,9 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     leaves over 5 % of the crest bare (a mound taller than two layers: big-shake's section, 12 m
     long), and
     then picks the largest spread whose quick pass still holds ``SPREAD_MARGIN`` over the
-    count, the next one tried holding less from every origin, laid until nothing more fits. On ``tiny`` (a slice of ``mini``) the count covers
-    the crest, and nothing is spread; nor where its time is up."""
+    count, the next one tried holding less from every origin, laid until nothing more fits. On
+    ``tiny`` (a slice of ``mini``) the count covers the crest, and nothing is spread; nor where
+    its time is up."""
     from dataclasses import replace as with_
 
     from optimizer.search import sites
