@@ -1089,12 +1089,12 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
         # (``mini`` seed 3: four moves took it from 6.9 % bare to 5.4 % and fell, the fourth
         # block moved sliding; three stood, at 5.6 %). Once: an attempt with rows is repaired
         # before the next is weighed, which needs the time.
-        fewer, report = history[-2]
+        fewer, less = history[-2]
         kept = _settled_again(problem, attempt, fewer, rng, end, phase, than=attempt.coverage,
-                              coverage=report, unmoved=attempt.unmoved or attempt)
+                              coverage=less, unmoved=attempt.unmoved or attempt)
         if kept is not attempt:
-            phase.update(moved=stats.moved - 1, undone=1, blocks=len(fewer), porosity_percent=fewer.porosity.percent,
-                         bare_share_percent=report.bare_share_percent)
+            phase.update(moved=stats.moved - 1, undone=1, blocks=len(fewer),
+                         porosity_percent=fewer.porosity.percent, bare_share_percent=less.bare_share_percent)
     if kept is attempt:
         phase.update(blocks=len(attempt.build), porosity_percent=attempt.build.porosity.percent,
                      bare_share_percent=attempt.coverage.bare_share_percent)
