@@ -17,7 +17,8 @@ time: the best of the first ``BLOCKS_TRIED`` blocks (most bare area in
 reach first), or if none of them has a move, of the next as many, up to
 ``GROUPS`` groups. Where none of them has a move, a far move (:func:`_far_move`) takes
 the free block whose removal bares the least to where the mound is bare, however far. The
-caller settles the whole layout again and keeps the moves only if it stands.
+caller settles the whole layout again and keeps the moves only if it stands, or else
+all but the last, if that stands (``optimizer.api.cover_repair``).
 
 How many moves, blocks and candidates there are is fixed, so a seed gives
 one result; the deadline only stops it early (it is read before each node
@@ -117,7 +118,7 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport,
     """Move free blocks to bare areas while the coverage improves; returns a new build.
 
     ``report`` is ``build``'s coverage. ``build`` is not changed. ``history``, if given, gets
-    the layout after each move and its coverage (the caller may undo the last move).
+    the layouts after the last two moves and their coverage (the caller may undo the last move).
     """
     block = problem.scene.block
     build = build.copy()
@@ -165,6 +166,7 @@ def cover_moves(problem: Problem, build: Build, report: CoverageReport,
         stats.bare_share_percent = report.bare_share_percent
         if history is not None:
             history.append((build.copy(), report))
+            del history[:-2]  # the caller undoes the last move at most
         problem.tell("cover", build, f"{stats.moved} moved, bare {report.bare_share_percent:.1f}%")
     return build, report, stats
 
