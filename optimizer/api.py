@@ -576,10 +576,10 @@ def optimize(
         best, moves = repair_once(problem, best, stream("cover", chosen + 1), chosen + 1, end)
     if moves and moves["moved"] and moves["stood"]:
         n = moves["moved"]
+        undone = " (the last move undone: with it the layout fell)" if moves.get("undone") else ""
         moved = (f"moving {n} {'block that' if n == 1 else 'blocks that'} carried nothing to bare areas "
                  f"took the bare share from {moves['bare_before_percent']:.1f}% to "
-                 f"{moves['bare_share_percent']:.1f}%" + (" (the last move undone: with it the layout fell)"
-                                                          if moves.get("undone") else ""))
+                 f"{moves['bare_share_percent']:.1f}%{undone}")
         cover_note = f"{cover_note}; {moved}" if cover_note else moved
     build, gap, settle_info, stable = best.build, best.gap, best.settle, best.stable
     tried[chosen] = best

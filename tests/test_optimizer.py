@@ -773,10 +773,8 @@ def test_beam_restarts_go_on_while_a_full_layout_misses_the_target(tiny, near, s
     assert phase.stats.restarts == searches
 
 
-def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
-    """How many origins the beam ranks follows from the run's span, not from the time left: a
-    beam started with a fifth of the span left (after slow steps) ranks as many, and lays the
-    same layout, as one started at once. The clock stands still, so no deadline binds."""
+def _origins_ranked(monkeypatch) -> list[int]:
+    """How many origins each call of the beam's ``rank_origins`` ranks, from now on."""
     from optimizer.search import beam as beam_module
 
     ranked: list[int] = []
@@ -787,6 +785,14 @@ def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
         return real(*args, **kwargs)
 
     monkeypatch.setattr(beam_module, "rank_origins", counted)
+    return ranked
+
+
+def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
+    """How many origins the beam ranks follows from the run's span, not from the time left: a
+    beam started with a fifth of the span left (after slow steps) ranks as many, and lays the
+    same layout, as one started at once. The clock stands still, so no deadline binds."""
+    ranked = _origins_ranked(monkeypatch)
     still = problem(tiny, clock=lambda: 0.0)
     early = replace(still, deadline=100.0, span=100.0)
     late = replace(still, deadline=20.0, span=100.0)
@@ -802,17 +808,9 @@ def test_a_beam_started_late_in_the_run_does_the_same_work(tiny, monkeypatch):
 def test_the_settles_repair_plans_its_ranking_from_its_own_time(tiny, monkeypatch):
     """The confirming settle's repair beam has a short deadline of its own: it ranks as few
     origins as that time asks, not as many as the whole run's span would."""
-    from optimizer.search import beam as beam_module
     from optimizer.search import physics
 
-    ranked: list[int] = []
-    real = beam_module.rank_origins
-
-    def counted(*args, **kwargs):
-        ranked.append(kwargs.get("n", args[7] if len(args) > 7 else None))
-        return real(*args, **kwargs)
-
-    monkeypatch.setattr(beam_module, "rank_origins", counted)
+    ranked = _origins_ranked(monkeypatch)
     still = replace(problem(tiny, clock=lambda: 0.0), deadline=600.0, span=600.0)
     physics._repaired(still, Build(tiny), None, 6.0, np.random.default_rng(1))
     assert ranked == [4]  # 16 origins for a 3 s plan is cut to the least, 4

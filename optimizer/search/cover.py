@@ -233,7 +233,8 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, hung: list
     ``SETTLE_TOP`` that rest). The block moved is the free one whose removal bares the least,
     then holds the least inside the prism, and stands at least two bounding radii from the place
     (it holds nothing the new block rests on). Returns the new coverage, the block moved and
-    where it goes; None if no move covers better with the porosity within its window.    """
+    where it goes; None if no move covers better with the porosity within its window.
+    """
     scene, block = problem.scene, problem.scene.block
     bare = BareArea(report, block)
     if bare.tree is None:
