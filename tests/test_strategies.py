@@ -210,18 +210,42 @@ def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
     assert laid_sites(pr, Build(mini), sites, []) == frozenset()
 
 
-def test_toe_rows_take_the_hanging_with_most_inside_among_those_that_reach_the_toe():
-    """On ``mini`` no hanging comes within REACH of H/2 of the toe line; the crown and the
-    horizontal hanging come within H/2 (0.81 and 0.80 m of 0.83), and the rows take the crown,
-    whose block lies more inside the design prism (the nearest, horizontal, cost the count)."""
-    from geometry.coverage import BARE_FRACTION
-    from optimizer.search.toe import REACH
+def test_toe_rows_take_the_hanging_that_covers_the_toes_strip_best():
+    """On ``mini`` the rows take a hanging that covers about as much of the toe's strip as the
+    best (the slope from the toe line up to H / 2), the one of those with most inside, and the
+    strip is then covered along the rows. Measured here with the coverage's own samples, not
+    with the rows' estimate: of the strip between the mound's ends, less a block's height at
+    each, at most 13 % is bare (9.7 % at 2026-12-07). The hanging with most inside of those
+    within H / 2 of the toe line at the block's middle, a crown turned 100 degrees, left 17.3 %
+    of it bare."""
+    from geometry.coverage import BARE_FRACTION, coverage
+    from optimizer.search.hangings import spread_yaws
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.toe import STRIP_SLACK, _outermost, strip_covered
 
     mini = load_scene("mini")
-    phase = ToeRows().run(problem(mini), None, np.random.default_rng(1))
-    half = BARE_FRACTION * mini.block.height
-    assert all(REACH * half < r <= half for r in phase.stats.reach_m), phase.stats
+    pr = problem(mini)
+    phase = ToeRows().run(pr, None, np.random.default_rng(1))
+    design, half = mini.design, BARE_FRACTION * mini.block.height
+    y = 0.5 * (design.y_start + design.y_end)
+    shapes, build = ShapeCache(mini.block), Build(mini)
+    every = []
+    for fam, yaw in spread_yaws(mini.block, pr.families, 12):
+        c = _outermost(pr, build, shapes.hung(fam, yaw), 1.0, y)
+        if c is not None:
+            every.append(strip_covered(mini, shapes.hung(fam, yaw), c, 1.0))
+    assert all(s >= max(every) - STRIP_SLACK for s in phase.stats.strip_covered), phase.stats
     assert all(h.startswith("crown") for h in phase.stats.hangings), phase.stats
+
+    report = coverage(mini, phase.build.placed())
+    pts, area = report.samples.points, report.samples.area
+    run, rise = design.bottom_half_width - design.top_half_width, design.z_top - design.z_bottom
+    up = (design.bottom_half_width - np.abs(pts[:, 0])) * math.hypot(run, rise) / run  # along the slope
+    h = mini.block.height
+    strip = ((report.samples.face != 1) & (up <= half) & (area > 0)
+             & (pts[:, 1] > design.y_start + h) & (pts[:, 1] < design.y_end - h))
+    bare = area[strip & report.bare].sum() / area[strip].sum()
+    assert bare <= 0.13, f"{100 * bare:.1f} % of the toes' strip bare"
 
 
 def test_toe_rows_stand_on_the_outer_line_all_along():

@@ -13,10 +13,16 @@ For each toe (the seaward one only behind a wall):
 1. at mid-length, each hanging of the block at ``yaws`` yaws over its
    symmetry's period is lowered as far out towards the toe as it rests
    inside the zone (bisection, to ``RESOLUTION`` of H);
-2. of those whose surface comes within ``REACH`` of H / 2 of the design toe
-   line, the one with the most volume inside the design prism is kept; if
-   none does, of those within H / 2, the one with the most inside; if none
-   does, the nearest;
+2. the hanging kept is the one that covers the most of the toe's strip, the
+   slope from the toe line up to H / 2 along it, over one block's width of row
+   and its gap (``strip_covered``), of those within ``STRIP_SLACK`` of the
+   best the one with the most volume inside the design prism; if none covers
+   any of it, the nearest to the toe line. (Until 2026-12-07 the hanging was
+   the one with the most inside of those within H / 2 of the toe line at the
+   block's middle: on ``mini`` a crown hanging that covered 69 % of the strip,
+   where another crown hanging, with 1 % less of the block inside, covers 82 %.
+   The rows then left the strip between their blocks bare, 3 % of the mound's
+   surface: docs/coverage-study.md, stop 71);
 3. the row is laid from one end of the zone to the other: past each block,
    the next is lowered every ``ROW_STEP`` of H along the row over half a
    block, each as far out as it rests on the ground inside the zone, and the
@@ -25,13 +31,14 @@ For each toe (the seaward one only behind a wall):
    block, and the rows of ``mini`` stood 0.3-0.4 m in from the outer line,
    beyond H/2 of the toe line.)
 
-Nothing in it is tuned to a scene: ``REACH`` leaves room for the toe between
-two blocks of a row, and the steps are shares of the block height.
+The steps are shares of the block height. ``STRIP_SLACK`` was set on ``mini`` alone
+(docs/coverage-study.md, stop 71, gives what it does there without it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -43,9 +50,17 @@ from .hangings import spread_yaws
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 
-#: A hanging is said to reach the toe when its surface comes within this share of the bare
-#: distance of the design toe line (the toe between two blocks of a row lies a little further).
-REACH = 0.9
+if TYPE_CHECKING:
+    from geometry.scene import Scene
+
+#: Hangings whose share of the toe's strip covered is within this of the best are as good, and
+#: the one with the most inside the design prism of them is kept: on ``mini`` the horizontal
+#: hanging covers as much of the strip as the crown (82 %) with 15 % less of the block inside,
+#: which cost the count (docs/coverage-study.md). Set on ``mini`` alone.
+STRIP_SLACK = 0.05
+#: Points across the row (one block's width and a gap) and up the strip at which it is sampled.
+STRIP_ALONG = 41
+STRIP_UP = 4
 #: How finely the outermost place is found, as a share of the block height.
 RESOLUTION = 0.01
 #: Steps along the row from one block to the next, as a share of the block height.
@@ -68,11 +83,14 @@ class ToeStats(Stats):
         The hanging and yaw (degrees) of each side's row.
     reach_m : tuple of float
         How near each row's block at mid-length comes to the design toe line.
+    strip_covered : tuple of float
+        The share of the toe's strip that block covers (:func:`strip_covered`).
     """
 
     placed: int = 0
     hangings: tuple[str, ...] = ()
     reach_m: tuple[float, ...] = ()
+    strip_covered: tuple[float, ...] = ()
 
 
 class ToeRows(Strategy):
@@ -95,47 +113,51 @@ class ToeRows(Strategy):
         shapes = ShapeCache(problem.scene.block)
         design = problem.scene.design
         sides = (1.0,) if design.wall_x is not None else (1.0, -1.0)
-        placed, names, reach = 0, [], []
+        placed, names, reach, strip = 0, [], [], []
         for side in sides:
             if problem.time_left() <= 0:
                 break
             chosen = self._hanging(problem, build, shapes, side)
             if chosen is None:
                 continue
-            fam, yaw, dist = chosen
+            fam, yaw, dist, cover = chosen
             names.append(f"{fam} {np.degrees(yaw):.0f}")
             reach.append(dist)
+            strip.append(cover)
             build, laid = self._best_row(problem, build, shapes, side, fam, yaw)
             placed += laid
-        return Phase(build, ToeStats(placed, tuple(names), tuple(reach)), origin)
+        return Phase(build, ToeStats(placed, tuple(names), tuple(reach), tuple(strip)), origin)
 
     # --- which hanging ---------------------------------------------------------------
 
     def _hanging(self, problem: Problem, build: Build, shapes: ShapeCache,
-                 side: float) -> tuple[str, float, float] | None:
-        """The (hanging, yaw, distance to the toe) a row should be laid in, or None if none fits."""
+                 side: float) -> tuple[str, float, float, float] | None:
+        """The (hanging, yaw, distance to the toe line, share of the toe's strip covered) a row
+        should be laid in, or None if none fits."""
         scene = problem.scene
         block, design = scene.block, scene.design
         y = 0.5 * (design.y_start + design.y_end)
         toe = np.array([[side * design.bottom_half_width, y, design.z_bottom]])
-        half = BARE_FRACTION * block.height
-        limit = REACH * half
         found = []
         for fam, yaw in spread_yaws(block, problem.families, self.yaws):
             if problem.time_left() <= 0:
                 break
-            c = _outermost(problem, build, shapes.hung(fam, yaw), side, y)
+            shape = shapes.hung(fam, yaw)
+            c = _outermost(problem, build, shape, side, y)
             if c is None:
                 continue
             dist = float(distance_to_block(toe, block, c.pose)[0])
-            # Within REACH of H / 2 first, then within H / 2 (the toe's own point covered, the
-            # toe between two blocks of the row not): the most inside; beyond, the nearest.
-            tier = 0 if dist <= limit else 1 if dist <= half else 2
-            found.append((tier, dist if tier == 2 else -c.inside, dist, fam, yaw))
+            found.append((strip_covered(scene, shape, c, side), c.inside, dist, fam, yaw))
         if not found:
             return None
-        _, _, dist, fam, yaw = min(found)
-        return fam, yaw, dist
+        best = max(f[0] for f in found)
+        if best > 0.0:
+            # Of those that cover about as much of the strip as the best, the most inside.
+            cover, _, dist, fam, yaw = max((f for f in found if f[0] >= best - STRIP_SLACK),
+                                           key=lambda f: (f[1], f[0]))
+        else:
+            cover, _, dist, fam, yaw = min(found, key=lambda f: f[2])  # none covers it: the nearest
+        return fam, yaw, dist, cover
 
     # --- the row ---------------------------------------------------------------------------
 
@@ -216,3 +238,23 @@ def _outermost(problem: Problem, build: Build, shape: Shape, side: float, y: flo
         else:
             lo, best = mid, c
     return best
+
+
+def strip_covered(scene: Scene, shape: Shape, candidate: Candidate, side: float) -> float:
+    """The share of the toe's strip within H / 2 of ``candidate``: the design slope from the
+    ``side`` toe line up to H / 2 along it, ``STRIP_UP`` lines of ``STRIP_ALONG`` points, over
+    the block's width along the row and the gap (``ROW_STEP`` of H) a row leaves to the next."""
+    block, design = scene.block, scene.design
+    half = BARE_FRACTION * block.height
+    width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
+    across = 0.5 * width + 0.5 * ROW_STEP * block.height
+    y = float(candidate.pose.position[1])
+    ys = np.linspace(y - across, y + across, STRIP_ALONG)
+    run = design.bottom_half_width - design.top_half_width
+    rise = design.z_top - design.z_bottom
+    slope = float(np.hypot(run, rise))
+    up = np.linspace(0.0, min(half, slope), STRIP_UP)
+    x = side * (design.bottom_half_width - up * run / slope)
+    z = design.z_bottom + up * rise / slope
+    points = np.column_stack([np.repeat(x, STRIP_ALONG), np.tile(ys, STRIP_UP), np.repeat(z, STRIP_ALONG)])
+    return float((distance_to_block(points, block, candidate.pose) <= half).mean())
