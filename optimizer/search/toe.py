@@ -13,16 +13,19 @@ For each toe (the seaward one only behind a wall):
 1. at mid-length, each hanging of the block at ``yaws`` yaws over its
    symmetry's period is lowered as far out towards the toe as it rests
    inside the zone (bisection, to ``RESOLUTION`` of H);
-2. the hanging kept is the one that covers the most of the toe's strip, the
-   slope from the toe line up to H / 2 along it, over one block's width of row
-   and its gap (``strip_covered``), of those within ``STRIP_SLACK`` of the
-   best the one with the most volume inside the design prism; if none covers
-   any of it, the nearest to the toe line. (Until 2026-12-07 the hanging was
-   the one with the most inside of those within H / 2 of the toe line at the
-   block's middle: on ``mini`` a crown hanging that covered 69 % of the strip,
-   where another crown hanging, with 1 % less of the block inside, covers 82 %.
-   The rows then left the strip between their blocks bare, 3 % of the mound's
-   surface: docs/coverage-study.md, stop 71);
+2. the hanging kept is the one whose block covers the most of the toe's strip,
+   the slope from the toe line up to H / 2 along it, over one block's width of
+   row and its gap (:func:`strip_covered`), of those that hold at least
+   ``1 - INSIDE_SLACK`` of the most any holds inside the design prism (the
+   most inside where they cover as much); if none covers any of it, the
+   nearest to the toe line. The strip a block covers changes sharply with its
+   yaw (on ``mini`` a crown hanging covers 82 % at 0 degrees and 74 % at 2.5),
+   so the yaws are ``yaws`` a period, and around the ``REFINED`` best of them
+   ``REFINE_STEPS`` more on each side, up to the next. (Until 2026-12-07 the
+   hanging was the one with the most inside of those within H / 2 of the toe
+   line at the block's middle, at 12 yaws: on ``mini`` a crown turned 100
+   degrees that covers 69 % of the strip. The rows then left the strip between
+   their blocks bare, 3 % of the mound's surface: docs/coverage-study.md, stop 71);
 3. the row is laid from one end of the zone to the other: past each block,
    the next is lowered every ``ROW_STEP`` of H along the row over half a
    block, each as far out as it rests on the ground inside the zone, and the
@@ -31,8 +34,8 @@ For each toe (the seaward one only behind a wall):
    block, and the rows of ``mini`` stood 0.3-0.4 m in from the outer line,
    beyond H/2 of the toe line.)
 
-The steps are shares of the block height. ``STRIP_SLACK`` was set on ``mini`` alone
-(docs/coverage-study.md, stop 71, gives what it does there without it).
+The steps are shares of the block height. ``INSIDE_SLACK`` was set on ``mini`` alone
+(docs/coverage-study.md, stop 71, gives what the choice is without it).
 """
 
 from __future__ import annotations
@@ -46,18 +49,23 @@ from geometry.coverage import BARE_FRACTION, distance_to_block
 
 from .build import GROUND, Build, Candidate, search_window
 from .drop import Shape
-from .hangings import spread_yaws
+from .hangings import spread_yaws, symmetry
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 
 if TYPE_CHECKING:
     from geometry.scene import Scene
 
-#: Hangings whose share of the toe's strip covered is within this of the best are as good, and
-#: the one with the most inside the design prism of them is kept: on ``mini`` the horizontal
-#: hanging covers as much of the strip as the crown (82 %) with 15 % less of the block inside,
-#: which cost the count (docs/coverage-study.md). Set on ``mini`` alone.
-STRIP_SLACK = 0.05
+#: The rows' hanging is chosen among those that hold at least this much less than the most any
+#: holds inside the design prism, as a share of it. On ``mini`` the horizontal hanging covers
+#: as much of the toe's strip as the crown (82 %) with 15 % less of the block inside, and rows
+#: in it cost the count (docs/coverage-study.md, stop 36); the crown that covers most holds
+#: 1 % less than the crown that holds most. Set on ``mini`` alone.
+INSIDE_SLACK = 0.05
+#: The best yaws of the first pass looked at more finely, and the steps on each side of each,
+#: up to the next yaw of that pass.
+REFINED = 4
+REFINE_STEPS = 6
 #: Points across the row (one block's width and a gap) and up the strip at which it is sampled.
 STRIP_ALONG = 41
 STRIP_UP = 4
@@ -104,7 +112,7 @@ class ToeRows(Strategy):
 
     name = "toe"
 
-    def __init__(self, yaws: int = 12):
+    def __init__(self, yaws: int = 24):
         self.yaws = yaws
 
     def run(self, problem: Problem, previous: Phase | None, rng: np.random.Generator) -> Phase:
@@ -138,24 +146,32 @@ class ToeRows(Strategy):
         block, design = scene.block, scene.design
         y = 0.5 * (design.y_start + design.y_end)
         toe = np.array([[side * design.bottom_half_width, y, design.z_bottom]])
+
+        def tried(fam: str, yaw: float) -> tuple[float, float, float, str, float] | None:
+            shape = shapes.hung(fam, yaw)
+            c = _outermost(problem, build, shape, side, y)
+            if c is None:
+                return None
+            dist = float(distance_to_block(toe, block, c.pose)[0])
+            return strip_covered(scene, shape, c, side), c.inside, dist, fam, yaw
+
         found = []
         for fam, yaw in spread_yaws(block, problem.families, self.yaws):
             if problem.time_left() <= 0:
                 break
-            shape = shapes.hung(fam, yaw)
-            c = _outermost(problem, build, shape, side, y)
-            if c is None:
-                continue
-            dist = float(distance_to_block(toe, block, c.pose)[0])
-            found.append((strip_covered(scene, shape, c, side), c.inside, dist, fam, yaw))
+            found.append(tried(fam, yaw))
+        found = [f for f in found if f is not None]
         if not found:
             return None
-        best = max(f[0] for f in found)
-        if best > 0.0:
-            # Of those that cover about as much of the strip as the best, the most inside.
-            cover, _, dist, fam, yaw = max((f for f in found if f[0] >= best - STRIP_SLACK),
-                                           key=lambda f: (f[1], f[0]))
-        else:
+        for _, _, _, fam, yaw in sorted(_fit(found), key=_covering, reverse=True)[:REFINED]:
+            step = 2 * np.pi / symmetry(block, fam) / self.yaws / REFINE_STEPS
+            for k in (*range(-REFINE_STEPS + 1, 0), *range(1, REFINE_STEPS)):
+                if problem.time_left() <= 0:
+                    break
+                found.append(tried(fam, (yaw + k * step) % (2 * np.pi / symmetry(block, fam))))
+        found = [f for f in found if f is not None]
+        cover, _, dist, fam, yaw = max(_fit(found), key=_covering)
+        if cover <= 0.0:
             cover, _, dist, fam, yaw = min(found, key=lambda f: f[2])  # none covers it: the nearest
         return fam, yaw, dist, cover
 
@@ -238,6 +254,17 @@ def _outermost(problem: Problem, build: Build, shape: Shape, side: float, y: flo
         else:
             lo, best = mid, c
     return best
+
+
+def _fit(found: list[tuple[float, float, float, str, float]]) -> list[tuple[float, float, float, str, float]]:
+    """The hangings (strip covered, inside, ...) that hold within ``INSIDE_SLACK`` of the most inside."""
+    most = max(f[1] for f in found)
+    return [f for f in found if f[1] >= (1.0 - INSIDE_SLACK) * most]
+
+
+def _covering(f: tuple[float, float, float, str, float]) -> tuple[float, float]:
+    """A hanging's rank for the rows: the strip it covers, then how much it holds inside."""
+    return f[0], f[1]
 
 
 def strip_covered(scene: Scene, shape: Shape, candidate: Candidate, side: float) -> float:
