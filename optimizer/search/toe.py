@@ -56,14 +56,14 @@ from .shapes import ShapeCache
 if TYPE_CHECKING:
     from geometry.scene import Scene
 
-#: The rows' hanging is chosen among those that hold at least this much less than the most any
-#: holds inside the design prism, as a share of it. On ``mini`` the horizontal hanging covers
+#: The rows' hanging is chosen among those whose block holds inside the design prism no less
+#: than this share below the most any hanging holds. On ``mini`` the horizontal hanging covers
 #: as much of the toe's strip as the crown (82 %) with 15 % less of the block inside, and rows
 #: in it cost the count (docs/coverage-study.md, stop 36); the crown that covers most holds
 #: 1 % less than the crown that holds most. Set on ``mini`` alone.
 INSIDE_SLACK = 0.05
-#: The best yaws of the first pass looked at more finely, and the steps on each side of each,
-#: up to the next yaw of that pass.
+#: How many of the first pass's best (ranked as the choice ranks them) are looked at more
+#: finely, and in how many steps on each side, up to the first pass's next yaw.
 REFINED = 4
 REFINE_STEPS = 6
 #: Points across the row (one block's width and a gap) and up the strip at which it is sampled.
@@ -107,7 +107,8 @@ class ToeRows(Strategy):
     Parameters
     ----------
     yaws : int
-        Yaws tried per hanging, over one period of its symmetry.
+        Yaws tried per hanging, over one period of its symmetry, before the finer look
+        around the best (``REFINED``).
     """
 
     name = "toe"
