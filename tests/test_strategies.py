@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import replace
-from pathlib import Path
 
 import fcl
 import numpy as np
@@ -212,11 +211,9 @@ def test_the_pattern_leaves_out_the_sites_a_toe_row_is_in_the_way_of():
     assert laid_sites(pr, Build(mini), sites, []) == frozenset()
 
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def _strips(scene, families=None):
-    """The share of each toe's strip that the rows' hanging covers, and each row's hanging."""
+    """The rows laid on an empty ``scene`` (``families``: the hangings, where not the default)."""
     pr = problem(scene)
     if families is not None:
         pr = replace(pr, families=families)
@@ -251,6 +248,7 @@ def test_toe_rows_take_the_hanging_that_covers_the_toes_strip_best():
                 every.append((strip_covered(mini, shapes.hung(fam, np.radians(deg)), c, 1.0), c.inside))
     most = max(inside for _, inside in every)
     best = max(s for s, inside in every if inside >= (1 - INSIDE_SLACK) * most)
+    assert len(phase.stats.strip_covered) == len(phase.stats.hangings) == 2, phase.stats
     assert all(s >= best - 1e-9 for s in phase.stats.strip_covered), (best, phase.stats)
     assert all(h.startswith("crown") for h in phase.stats.hangings), phase.stats
 

@@ -17,11 +17,12 @@ For each toe (the seaward one only behind a wall):
    the slope from the toe line up to H / 2 along it, over one block's width of
    row and its gap (:func:`strip_covered`), of those that hold at least
    ``1 - INSIDE_SLACK`` of the most any holds inside the design prism (the
-   most inside where they cover as much); if none covers any of it, the
-   nearest to the toe line. The strip a block covers changes sharply with its
-   yaw (on ``mini`` a crown hanging covers 82 % at 0 degrees and 74 % at 2.5),
-   so the yaws are ``yaws`` a period, and around the ``REFINED`` best of them
-   ``REFINE_STEPS`` more on each side, up to the next. (Until 2026-12-07 the
+   most inside where they cover as much); if none of those covers any of it,
+   the nearest to the toe line of all the hangings (as before). The strip a
+   block covers changes sharply with its yaw (on ``mini`` a crown hanging
+   covers 82 % at 0 degrees and 74 % at 2.5), so the yaws are ``yaws`` a
+   period, and around the ``REFINED`` best of them ``REFINE_STEPS - 1`` more on
+   each side, short of the next (each yaw is lowered at once). (Until 2026-12-07 the
    hanging was the one with the most inside of those within H / 2 of the toe
    line at the block's middle, at 12 yaws: on ``mini`` a crown turned 100
    degrees that covers 69 % of the strip. The rows then left the strip between
@@ -148,13 +149,22 @@ class ToeRows(Strategy):
         y = 0.5 * (design.y_start + design.y_end)
         toe = np.array([[side * design.bottom_half_width, y, design.z_bottom]])
 
-        def tried(fam: str, yaw: float) -> tuple[float, float, float, str, float] | None:
+        def measured(fam: str, yaw: float) -> tuple[float, float, float, str, float] | None:
             shape = shapes.hung(fam, yaw)
             c = _outermost(problem, build, shape, side, y)
             if c is None:
                 return None
             dist = float(distance_to_block(toe, block, c.pose)[0])
             return strip_covered(scene, shape, c, side), c.inside, dist, fam, yaw
+
+        seen: dict[tuple[str, float], tuple[float, float, float, str, float] | None] = {}
+
+        def tried(fam: str, yaw: float) -> tuple[float, float, float, str, float] | None:
+            # Two neighbouring yaws among the best look at the same yaws between them.
+            key = (fam, round(yaw, 9))
+            if key not in seen:
+                seen[key] = measured(fam, yaw)
+            return seen[key]
 
         found = []
         for fam, yaw in spread_yaws(block, problem.families, self.yaws):
@@ -173,7 +183,7 @@ class ToeRows(Strategy):
         found = [f for f in found if f is not None]
         cover, _, dist, fam, yaw = max(_fit(found), key=_covering)
         if cover <= 0.0:
-            cover, _, dist, fam, yaw = min(found, key=lambda f: f[2])  # none covers it: the nearest
+            cover, _, dist, fam, yaw = min(found, key=lambda f: f[2])  # none covers it: the nearest of all
         return fam, yaw, dist, cover
 
     # --- the row ---------------------------------------------------------------------------
