@@ -175,11 +175,12 @@ class ToeRows(Strategy):
         if not found:
             return None
         for _, _, _, fam, yaw in sorted(_fit(found), key=_covering, reverse=True)[:REFINED]:
-            step = 2 * np.pi / symmetry(block, fam) / self.yaws / REFINE_STEPS
+            period = 2 * np.pi / symmetry(block, fam)
+            step = period / self.yaws / REFINE_STEPS
             for k in (*range(-REFINE_STEPS + 1, 0), *range(1, REFINE_STEPS)):
                 if problem.time_left() <= 0:
                     break
-                found.append(tried(fam, (yaw + k * step) % (2 * np.pi / symmetry(block, fam))))
+                found.append(tried(fam, (yaw + k * step) % period))
         found = [f for f in found if f is not None]
         cover, _, dist, fam, yaw = max(_fit(found), key=_covering)
         if cover <= 0.0:
@@ -195,7 +196,7 @@ class ToeRows(Strategy):
         the build with it, and how many blocks it has."""
         scene = problem.scene
         shape = shapes.hung(fam, yaw)
-        width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
+        width = _row_width(shape)
         first = search_window(scene)[1][0]
         flush = max(first, scene.design.y_start + (0.5 + START_PAST) * width)
         best = None
@@ -278,21 +279,22 @@ def _covering(f: tuple[float, float, float, str, float]) -> tuple[float, float]:
     return f[0], f[1]
 
 
+def _row_width(shape: Shape) -> float:
+    """How far a block in ``shape`` reaches along the row (y), metres."""
+    return float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
+
+
 def strip_covered(scene: Scene, shape: Shape, candidate: Candidate, side: float) -> float:
     """The share of the toe's strip within H / 2 of ``candidate``: the design slope from the
     ``side`` toe line up to H / 2 along it, ``STRIP_UP`` lines of ``STRIP_ALONG`` points, over
     the block's width along the row and the gap (``ROW_STEP`` of H) a row leaves to the next."""
     block, design = scene.block, scene.design
     half = BARE_FRACTION * block.height
-    width = float(shape.xy_boxes[:, 1, 1].max() - shape.xy_boxes[:, 0, 1].min())
-    across = 0.5 * width + 0.5 * ROW_STEP * block.height
+    across = 0.5 * _row_width(shape) + 0.5 * ROW_STEP * block.height
     y = float(candidate.pose.position[1])
     ys = np.linspace(y - across, y + across, STRIP_ALONG)
-    run = design.bottom_half_width - design.top_half_width
-    rise = design.z_top - design.z_bottom
-    slope = float(np.hypot(run, rise))
-    up = np.linspace(0.0, min(half, slope), STRIP_UP)
-    x = side * (design.bottom_half_width - up * run / slope)
-    z = design.z_bottom + up * rise / slope
+    slope = float(np.hypot(design.bottom_half_width - design.top_half_width, design.height))
+    z = design.z_bottom + np.linspace(0.0, min(half, slope), STRIP_UP) * design.height / slope
+    x = side * design.half_width(z)
     points = np.column_stack([np.repeat(x, STRIP_ALONG), np.tile(ys, STRIP_UP), np.repeat(z, STRIP_ALONG)])
     return float((distance_to_block(points, block, candidate.pose) <= half).mean())
