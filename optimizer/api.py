@@ -958,7 +958,8 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     if clock() + needs > problem.deadline:
         return chosen, f"no time was left for an attempt with toe rows first (about {needs:.0f} s)"
     again = [ToeRows()] + [
-        s.around_laid().against_wall().covering() if isinstance(s, BeamSearch) else s for s in strategies]
+        s.around_laid().against_wall().covering() if isinstance(s, BeamSearch)
+        else s.covering() if isinstance(s, Annealing) else s for s in strategies]
     tried.append(_attempt(problem, again, scene, (), stream("rows", number), settle_layout, end,
                           len(tried) + 1, all_or_nothing=True))
     new = tried[-1]

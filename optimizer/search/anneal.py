@@ -31,9 +31,11 @@ one result; the deadline only stops the run early.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -47,8 +49,22 @@ from .objective import Energy
 from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 from .sites import pattern_sites
+from .toe import strip_share
+
+if TYPE_CHECKING:
+    from geometry.scene import Scene
 
 MOVES = ("jitter", "yaw", "hanging", "relocate")
+#: How many times the moves the annealing makes in the attempt that aims to cover
+#: (:meth:`Annealing.covering`). Set on ``mini-mesh`` seeds 2-3 (docs/coverage-study.md, stop 72).
+COVER_FACTOR = 10
+
+
+def holds_toe(scene: Scene, build: Build, key: int, c: Candidate) -> bool:
+    """Whether a block of the toe rows (``Build.toe_rows``), moved to ``c``, covers no less of the
+    toe's strip where it was laid than it did there."""
+    points, share = build.toe_rows[key]
+    return strip_share(scene, points, c.pose) >= share
 
 
 def weak_blocks(build: Build) -> int:
@@ -115,6 +131,14 @@ class Annealing(Strategy):
         self.jitter_yaw = jitter_yaw
         self.accept = accept
         self._sites: list[tuple[str, float, float, float]] = []
+
+    def covering(self) -> Annealing:
+        """The same refinement with ``COVER_FACTOR`` times the moves, for the attempt that aims
+        to cover: its toe rows hold much outside the prism, and, held to their strip
+        (:func:`holds_toe`), the moves that bring the rest in are fewer to find."""
+        other = copy.copy(self)
+        other.iterations = COVER_FACTOR * self.iterations
+        return other
 
     # --- moves ---------------------------------------------------------------------------
 
@@ -202,7 +226,9 @@ class Annealing(Strategy):
         if key is not None:
             energy.remove(build.poses[key].position)
             build.remove(key)
-        build.place(c)
+        new = build.place(c)
+        if key in build.toe_rows:  # a block of the toe rows, moved, is still one
+            build.toe_rows[new] = build.toe_rows.pop(key)
         energy.add(c.pose.position)
 
     # --- search ----------------------------------------------------------------------------
@@ -242,6 +268,9 @@ class Annealing(Strategy):
                 continue
             d, new_weak = self._delta(problem, build, energy, key, c, weak)
             if d > 0 and rng.random() >= math.exp(-d / temp):
+                rejected += 1
+                continue
+            if key in build.toe_rows and not holds_toe(problem.scene, build, key, c):
                 rejected += 1
                 continue
             if self.accept is not None and not self._stands(problem, build, key, c):

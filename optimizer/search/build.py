@@ -87,6 +87,11 @@ class Build:
         #: Blocks kept where a partial layout had them (``optimize(keep=...)``): by key, their id
         #: and type in that layout. No strategy moves or removes them.
         self.kept: dict[int, tuple[int, str]] = {}
+        #: Blocks laid along the toes to cover them (:class:`optimizer.search.toe.ToeRows`), by
+        #: key: the samples of the toe's strip where each was laid, and the share of them it
+        #: covered there. The annealing moves one only where it covers no less of them. A
+        #: settled build (:meth:`settled`) has new keys and none.
+        self.toe_rows: dict[int, tuple[np.ndarray, float]] = {}
         self.zone = scene.tolerance.polytope
         self._design = scene.design.polytope
         # The zone's faces a rising block can only cross further: slopes, crest, ends.
@@ -108,6 +113,7 @@ class Build:
         other.supports = dict(self.supports)
         other.carried = {k: set(v) for k, v in self.carried.items()}
         other.kept = dict(self.kept)
+        other.toe_rows = dict(self.toe_rows)
         return other
 
     # --- proposing ---------------------------------------------------------------

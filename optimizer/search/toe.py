@@ -55,6 +55,7 @@ from .problem import Phase, Problem, Stats, Strategy
 from .shapes import ShapeCache
 
 if TYPE_CHECKING:
+    from geometry.pose import Pose
     from geometry.scene import Scene
 
 #: The rows' hanging is chosen among those whose block holds inside the design prism no less
@@ -124,6 +125,7 @@ class ToeRows(Strategy):
         design = problem.scene.design
         sides = (1.0,) if design.wall_x is not None else (1.0, -1.0)
         placed, names, reach, strip = 0, [], [], []
+        before = set(build.order)
         for side in sides:
             if problem.time_left() <= 0:
                 break
@@ -136,6 +138,11 @@ class ToeRows(Strategy):
             strip.append(cover)
             build, laid = self._best_row(problem, build, shapes, side, fam, yaw)
             placed += laid
+        for key in (k for k in build.order if k not in before):
+            pose = build.poses[key]
+            points = strip_points(problem.scene, build.shapes[key], float(pose.position[1]),
+                                  1.0 if pose.position[0] >= 0.0 else -1.0)
+            build.toe_rows[key] = (points, strip_share(problem.scene, points, pose))
         return Phase(build, ToeStats(placed, tuple(names), tuple(reach), tuple(strip)), origin)
 
     # --- which hanging ---------------------------------------------------------------
@@ -288,13 +295,23 @@ def strip_covered(scene: Scene, shape: Shape, candidate: Candidate, side: float)
     """The share of the toe's strip within H / 2 of ``candidate``: the design slope from the
     ``side`` toe line up to H / 2 along it, ``STRIP_UP`` lines of ``STRIP_ALONG`` points, over
     the block's width along the row and the gap (``ROW_STEP`` of H) a row leaves to the next."""
+    points = strip_points(scene, shape, float(candidate.pose.position[1]), side)
+    return strip_share(scene, points, candidate.pose)
+
+
+def strip_points(scene: Scene, shape: Shape, y: float, side: float) -> np.ndarray:
+    """The samples of :func:`strip_covered` for a block of ``shape`` at ``y`` along the row."""
     block, design = scene.block, scene.design
     half = BARE_FRACTION * block.height
     across = 0.5 * _row_width(shape) + 0.5 * ROW_STEP * block.height
-    y = float(candidate.pose.position[1])
     ys = np.linspace(y - across, y + across, STRIP_ALONG)
     slope = float(np.hypot(design.bottom_half_width - design.top_half_width, design.height))
     z = design.z_bottom + np.linspace(0.0, min(half, slope), STRIP_UP) * design.height / slope
     x = side * design.half_width(z)
-    points = np.column_stack([np.repeat(x, STRIP_ALONG), np.tile(ys, STRIP_UP), np.repeat(z, STRIP_ALONG)])
-    return float((distance_to_block(points, block, candidate.pose) <= half).mean())
+    return np.column_stack([np.repeat(x, STRIP_ALONG), np.tile(ys, STRIP_UP), np.repeat(z, STRIP_ALONG)])
+
+
+def strip_share(scene: Scene, points: np.ndarray, pose: Pose) -> float:
+    """The share of ``points`` within H / 2 of a block at ``pose``."""
+    block = scene.block
+    return float((distance_to_block(points, block, pose) <= BARE_FRACTION * block.height).mean())
