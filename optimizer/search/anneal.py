@@ -15,6 +15,13 @@ Relocated and inserted blocks go, half the time, to a jittered site of the
 placement pattern the beam search used (its pockets fit the pattern's own
 hangings), otherwise anywhere in the zone a block can fit.
 
+A block of the toe rows (``Build.toe_rows``, laid by
+``optimizer.search.toe.ToeRows``) moves only where it covers no less of the
+toe's strip where it was laid (:func:`holds_toe`): moved further in, it holds
+more inside the prism, and the toe it was laid to cover is bare again. In the
+attempt that aims to cover, the annealing makes ``COVER_FACTOR`` times its
+moves (:meth:`Annealing.covering`).
+
 A move whose block would end out of tolerance or interpenetrate another
 (FCL) is rejected outright, never penalised. Otherwise it is accepted by the
 Metropolis rule at temperature T. The energy (``optimizer.objective``) is

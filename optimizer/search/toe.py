@@ -125,7 +125,6 @@ class ToeRows(Strategy):
         design = problem.scene.design
         sides = (1.0,) if design.wall_x is not None else (1.0, -1.0)
         placed, names, reach, strip = 0, [], [], []
-        before = set(build.order)
         for side in sides:
             if problem.time_left() <= 0:
                 break
@@ -136,13 +135,14 @@ class ToeRows(Strategy):
             names.append(f"{fam} {np.degrees(yaw):.0f}")
             reach.append(dist)
             strip.append(cover)
+            before = set(build.order)
             build, laid = self._best_row(problem, build, shapes, side, fam, yaw)
             placed += laid
-        for key in (k for k in build.order if k not in before):
-            pose = build.poses[key]
-            points = strip_points(problem.scene, build.shapes[key], float(pose.position[1]),
-                                  1.0 if pose.position[0] >= 0.0 else -1.0)
-            build.toe_rows[key] = (points, strip_share(problem.scene, points, pose))
+            for key in (k for k in build.order if k not in before):
+                # What the block covers where it was laid: the annealing keeps it so (holds_toe).
+                pose = build.poses[key]
+                points = strip_points(problem.scene, build.shapes[key], float(pose.position[1]), side)
+                build.toe_rows[key] = (points, strip_share(problem.scene, points, pose))
         return Phase(build, ToeStats(placed, tuple(names), tuple(reach), tuple(strip)), origin)
 
     # --- which hanging ---------------------------------------------------------------
