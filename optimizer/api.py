@@ -922,7 +922,9 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     (:meth:`BeamSearch.around_laid`), searching first from the origins whose
     pattern covers best (:meth:`BeamSearch.covering`), and setting the pattern's blocks
     beside a wall down against it (:meth:`BeamSearch.against_wall`); the
-    pocket fill takes the pockets beside the rows. Searched from the chosen attempt's origin
+    pocket fill takes the pockets beside the rows; the annealing makes ten
+    times its moves and moves a row block only where it covers no less of
+    its toe (:meth:`Annealing.covering`). Searched from the chosen attempt's origin
     without the fill (until 2026-11-26), the attempt fell short of the count
     on ``mini`` (55-67 of 75). The rows hold much of their volume outside
     the design prism, and the attempt often came to 57.1-57.6 %, over the

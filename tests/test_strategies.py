@@ -319,8 +319,10 @@ def test_only_the_beam_around_laid_blocks_leaves_out_their_sites(tiny):
 def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
     """``covered_attempt`` lays the rows first and gives the beam that follows them the
     blocks laid before it (``BeamSearch.around_laid``), and sets its pattern blocks beside a
-    wall down against it (``BeamSearch.against_wall``); the first attempt does neither."""
+    wall down against it (``BeamSearch.against_wall``); its annealing makes ``COVER_FACTOR``
+    times the moves (``Annealing.covering``). The first attempt does none of these."""
     import optimizer.api as api
+    from optimizer.search.anneal import COVER_FACTOR
 
     seen = []
     real = api._attempt
@@ -329,8 +331,8 @@ def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
         """The attempt with rows was asked for: what it would do is not under test."""
 
     def spy(problem_, strategies, *args, **kwargs):
-        seen.append([(type(s).__name__, getattr(s, "around_all", None), getattr(s, "to_wall", None))
-                     for s in strategies])
+        seen.append([(type(s).__name__, getattr(s, "around_all", None), getattr(s, "to_wall", None),
+                      getattr(s, "iterations", None)) for s in strategies])
         if isinstance(strategies[0], ToeRows):
             raise Seen
         return real(problem_, strategies, *args, **kwargs)
@@ -339,8 +341,9 @@ def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
     with pytest.raises(Seen):
         api.optimize(tiny, seed=1, time_limit=120,
                      strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
-    assert seen[0] == [("BeamSearch", False, False), ("Annealing", None, None)]
-    assert seen[-1] == [("ToeRows", None, None), ("BeamSearch", True, True), ("Annealing", None, None)]
+    assert seen[0] == [("BeamSearch", False, False, None), ("Annealing", None, None, 60)]
+    assert seen[-1] == [("ToeRows", None, None, None), ("BeamSearch", True, True, None),
+                        ("Annealing", None, None, COVER_FACTOR * 60)]
 
 
 def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
@@ -769,6 +772,7 @@ def test_annealing_moves_a_toe_row_block_only_where_it_covers_its_strip_no_less(
     laid = dict(rows.build.toe_rows)
     assert len(laid) == 12
     phase = Annealing(iterations=400).run(problem(mini), rows, np.random.default_rng(5))
+    assert rows.build.toe_rows.keys() == laid.keys()  # the rows' own build is not moved with it
     build = phase.build
     assert len(build.toe_rows) == len(laid)
     moved = [k for k in build.toe_rows if k not in laid]

@@ -98,7 +98,8 @@ class AnnealStats(Stats):
     iterations : int
         Moves proposed (fewer than asked when the deadline came first).
     accepted, rejected : int
-        Moves kept, and moves the Metropolis rule or the local settle refused.
+        Moves kept, and moves the Metropolis rule, the toe rows' strip (:func:`holds_toe`)
+        or the local settle refused.
     infeasible : int
         Moves whose block ended out of tolerance or colliding.
     t0 : float
@@ -230,12 +231,13 @@ class Annealing(Strategy):
                 build.collide.add(key, build.block, build.poses[key])
 
     def _apply(self, build: Build, energy: Energy, key: int | None, c: Candidate) -> None:
+        row = build.toe_rows.get(key) if key is not None else None
         if key is not None:
             energy.remove(build.poses[key].position)
             build.remove(key)
         new = build.place(c)
-        if key in build.toe_rows:  # a block of the toe rows, moved, is still one
-            build.toe_rows[new] = build.toe_rows.pop(key)
+        if row is not None:  # a block of the toe rows, moved, is still one
+            build.toe_rows[new] = row
         energy.add(c.pose.position)
 
     # --- search ----------------------------------------------------------------------------

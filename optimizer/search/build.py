@@ -89,8 +89,9 @@ class Build:
         self.kept: dict[int, tuple[int, str]] = {}
         #: Blocks laid along the toes to cover them (:class:`optimizer.search.toe.ToeRows`), by
         #: key: the samples of the toe's strip where each was laid, and the share of them it
-        #: covered there. The annealing moves one only where it covers no less of them. A
-        #: settled build (:meth:`settled`) has new keys and none.
+        #: covered there. The annealing moves one only where it covers no less of them, and it
+        #: stays one under its new key. A block taken out (:meth:`remove`) leaves it; a settled
+        #: build (:meth:`settled`) has new keys and none.
         self.toe_rows: dict[int, tuple[np.ndarray, float]] = {}
         self.zone = scene.tolerance.polytope
         self._design = scene.design.polytope
@@ -253,6 +254,7 @@ class Build:
             raise ValueError(f"block {key} carries {sorted(self.carried[key])}")
         self._delete(key)
         self.order.remove(key)
+        self.toe_rows.pop(key, None)
 
     def _delete(self, key: int) -> None:
         for s in self.supports.pop(key):
