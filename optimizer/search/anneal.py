@@ -231,8 +231,9 @@ class Annealing(Strategy):
                 build.collide.add(key, build.block, build.poses[key])
 
     def _apply(self, build: Build, energy: Energy, key: int | None, c: Candidate) -> None:
-        row = build.toe_rows.get(key) if key is not None else None
+        row = None
         if key is not None:
+            row = build.toe_rows.get(key)  # read before remove() drops it
             energy.remove(build.poses[key].position)
             build.remove(key)
         new = build.place(c)

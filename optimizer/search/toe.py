@@ -135,10 +135,9 @@ class ToeRows(Strategy):
             names.append(f"{fam} {np.degrees(yaw):.0f}")
             reach.append(dist)
             strip.append(cover)
-            before = set(build.order)
             build, laid = self._best_row(problem, build, shapes, side, fam, yaw)
             placed += laid
-            for key in (k for k in build.order if k not in before):
+            for key in build.order[len(build.order) - laid:]:  # the row, last in crane order
                 # What the block covers where it was laid: the annealing keeps it so (holds_toe).
                 pose = build.poses[key]
                 points = strip_points(problem.scene, build.shapes[key], float(pose.position[1]), side)
