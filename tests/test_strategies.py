@@ -332,7 +332,8 @@ def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
 
     def spy(problem_, strategies, *args, **kwargs):
         seen.append([(type(s).__name__, getattr(s, "around_all", None), getattr(s, "to_wall", None),
-                      getattr(s, "iterations", None)) for s in strategies])
+                      getattr(s, "iterations", None))
+                     + ((s.base,) if isinstance(s, Annealing) else ()) for s in strategies])
         if isinstance(strategies[0], ToeRows):
             raise Seen
         return real(problem_, strategies, *args, **kwargs)
@@ -341,9 +342,45 @@ def test_the_attempt_with_toe_rows_searches_around_them(tiny, monkeypatch):
     with pytest.raises(Seen):
         api.optimize(tiny, seed=1, time_limit=120,
                      strategies=[BeamSearch(restarts=1, origins=3), Annealing(iterations=60)])
-    assert seen[0] == [("BeamSearch", False, False, None), ("Annealing", None, None, 60)]
+    assert seen[0] == [("BeamSearch", False, False, None), ("Annealing", None, None, 60, None)]
     assert seen[-1] == [("ToeRows", None, None, None), ("BeamSearch", True, True, None),
-                        ("Annealing", None, None, COVER_FACTOR * 60)]
+                        ("Annealing", None, None, COVER_FACTOR * 60, 60)]
+
+
+def test_the_covering_annealing_makes_its_extra_moves_only_while_over_the_window(tiny, seeded):
+    """``Annealing.covering`` makes up to ``COVER_FACTOR`` times the moves, but those past its
+    own count only while the best layout is short of its count or over its porosity window:
+    within it they only moved blocks inward, and left the surface barer (``cube``, stop 72).
+    The same layout, anneal and random stream, with the target set at its porosity and five
+    window widths above it."""
+    from optimizer.search.anneal import COVER_FACTOR
+    from optimizer.search.problem import TARGET_POINTS
+
+    assert len(seeded.build) == tiny.required_blocks
+    porosity = seeded.build.porosity.percent
+    within = replace(problem(tiny), target=porosity)
+    over = replace(problem(tiny), target=porosity - 5 * TARGET_POINTS)
+    covering = Annealing(iterations=30).covering()
+    stopped = covering.run(within, seeded, np.random.default_rng(4))
+    assert stopped.stats.iterations == 30
+    assert abs(stopped.build.porosity.percent - porosity) <= TARGET_POINTS
+    assert covering.run(over, seeded, np.random.default_rng(4)).stats.iterations == COVER_FACTOR * 30
+    # The plain annealing makes its own count, within the window or not.
+    assert Annealing(iterations=60).run(within, seeded, np.random.default_rng(4)).stats.iterations == 60
+
+
+def test_the_attempt_with_rows_is_given_the_time_of_its_longer_annealing(tiny):
+    """``covered_attempt`` starts an attempt with rows only where the time it needs is left, and
+    that attempt anneals ``COVER_FACTOR`` times as long (``longer_annealing``): counted from an
+    attempt without rows, not again from one that had them."""
+    from optimizer.api import _Attempt, longer_annealing
+    from optimizer.search.anneal import COVER_FACTOR
+
+    phases = [{"strategy": "beam", "seconds": 6.0}, {"strategy": "anneal", "seconds": 0.5}]
+    plain = _Attempt(Build(tiny), phases, {}, {}, True, seconds=10.0)
+    assert longer_annealing(plain) == pytest.approx((COVER_FACTOR - 1) * 0.5)
+    rows = _Attempt(Build(tiny), [{"strategy": "toe", "seconds": 3.0}, *phases], {}, {}, True, seconds=12.0)
+    assert longer_annealing(rows) == 0.0
 
 
 def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
