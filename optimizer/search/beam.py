@@ -124,38 +124,6 @@ def set_against_wall(problem: Problem, build: Build, c: Candidate,
     return c
 
 
-def set_against_slope(problem: Problem, build: Build, c: Candidate,
-                      lower: Callable[[Problem, Build, Shape, float, float], Candidate | None]) -> Candidate:
-    """``c`` set down nearer the design slope on its side, where the strip between them is wider
-    than the coverage's bare distance (``WALL_GAP_H`` block heights) and narrower than the
-    block's own footprint across the slope, so that no block of the pattern fits in it.
-
-    The gap is measured at the block's centroid height, from its outermost footprint to the
-    design slope. The block, as hung, is lowered again at the same y, from as far out as the gap
-    inwards in ``WALL_STEP`` steps; the first place where it is inside the zone and rests no
-    higher than ``c`` (to within ``WALL_RISE``) is taken, else ``c`` itself. A block above the
-    crest, beside a wall, or on a side with no slope is left as it is.
-    """
-    design = problem.scene.design
-    x, y, z = c.pose.position
-    if not design.z_bottom < z < design.z_top:
-        return c
-    side = 1.0 if x >= 0.0 else -1.0
-    if side < 0.0 and design.wall_x is not None:
-        return c
-    boxes = c.shape.xy_boxes
-    outer = x + boxes[:, 1, 0].max() if side > 0.0 else -(x + boxes[:, 0, 0].min())
-    width = float(boxes[:, 1, 0].max() - boxes[:, 0, 0].min())
-    gap = float(design.half_width(z) - outer)
-    if not WALL_GAP_H * problem.scene.block.height < gap < width:
-        return c
-    for out in np.arange(gap, WALL_STEP / 2, -WALL_STEP):
-        d = lower(problem, build, c.shape, float(x + side * out), float(y))
-        if d is not None and d.pose.position[2] <= z + WALL_RISE:
-            return d
-    return c
-
-
 @dataclass
 class _Beam:
     build: Build
@@ -241,13 +209,6 @@ class BeamSearch(Strategy):
     judge : callable, optional
         ``judge(problem, build) -> bool``: whether a finished build stands
         (``optimizer.search.physics.stands``); restarts that stand rank first.
-    slopes : bool
-        Set the pattern's blocks that stand too far inside a design slope to
-        cover it, and too near it for another block, down against it
-        (:func:`set_against_slope`). The pattern's layers step back from a
-        slope: without it, the first attempt left 15.9 % of ``mini``'s
-        surface and 24.6 % of ``big-shake``'s bare (seed 1), with it 10.8 and
-        15.0 % (2026-12-07, stop 73).
     """
 
     name = "beam"
@@ -257,7 +218,7 @@ class BeamSearch(Strategy):
                  scans: int = 3, scan_origins: int = 16, patience: int = 4,
                  accept: Callable[[Problem, Build, Candidate], Candidate | None] | None = None,
                  origin: tuple[float, float] | None = None, restarts: int = 4, share: float = 0.75,
-                 judge: Callable[[Problem, Build], bool] | None = None, slopes: bool = True):
+                 judge: Callable[[Problem, Build], bool] | None = None):
         self.width = width
         self.lookahead = lookahead
         self.jitter = jitter
@@ -275,7 +236,6 @@ class BeamSearch(Strategy):
         self.judge = judge
         self.around_all = False
         self.to_wall = False
-        self.to_slopes = slopes
         self.cover_rank = 0
 
     def against_wall(self) -> BeamSearch:
@@ -321,8 +281,6 @@ class BeamSearch(Strategy):
             if c is not None:
                 if self.to_wall:
                     c = set_against_wall(problem, beam.build, c, self._lower)
-                if self.to_slopes:
-                    c = set_against_slope(problem, beam.build, c, self._lower)
                 out.append((gain(problem, c), c, i))
                 continue
             fitted = False
