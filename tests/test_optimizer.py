@@ -1488,10 +1488,10 @@ def test_the_repairs_judge_the_window_as_the_layout_written_measures_it():
     """The search counts each block's volume inside the design prism on its own; the layout
     written is measured as the blocks' union. Two cubes a settle left overlapping by 5 mm make
     the counted porosity lower than the written one by exactly their shared volume inside the
-    prism (``counted_below``), and the repairs' moves (``moves_until``) judge the window from a
+    prism (``counted_below``), and the repairs' moves (``as_written``) judge the window from a
     target lowered by that much: on the held-out ``cube-small`` the covering moves had taken
     seed 1 to 47.9998 % as counted, 48.0001 % as written, over its window."""
-    from optimizer.api import counted_below, moves_until
+    from optimizer.api import as_written, counted_below
 
     scene = load_scene(str(ROOT / "benchmarks" / "scenes" / "cube.toml"))
     side = scene.block.height
@@ -1504,5 +1504,6 @@ def test_the_repairs_judge_the_window_as_the_layout_written_measures_it():
     expected = 100.0 * shared / scene.design_volume
     assert counted_below(scene, build) == pytest.approx(expected, rel=1e-6)
     pr = problem(scene)
-    short = moves_until(pr, pr.now() + 60.0, 1.0, build)
-    assert short.target == pytest.approx(pr.target - expected, rel=1e-9)
+    written = as_written(pr, build)
+    assert written.target == pytest.approx(pr.target - expected, rel=1e-9)
+    assert written.deadline == pr.deadline

@@ -21,7 +21,9 @@ toe's strip where it was laid (:func:`holds_toe`): moved further in, it holds
 more inside the prism, and the toe it was laid to cover is bare again. In the
 attempt that aims to cover, the annealing makes up to ``COVER_FACTOR`` times
 its moves (:meth:`Annealing.covering`): the moves past its own count go on
-only while the best layout is over its porosity window.
+only while the best layout is short of its count or outside its porosity
+window (the temperature still falls over all of them, so a run stopped at
+its own count has not cooled).
 
 A move whose block would end out of tolerance or interpenetrate another
 (FCL) is rejected outright, never penalised. Otherwise it is accepted by the
@@ -34,7 +36,8 @@ locally (``optimizer.search.physics.raised_check``) before it is kept.
 Temperature schedule: T0 is calibrated so that the average uphill move of a
 trial sample is accepted with probability 1/2; T falls geometrically to
 T0/100 over the iterations. The iteration count is fixed, so a seed gives
-one result; the deadline only stops the run early.
+one result; the deadline, and in the covering annealing the window, only
+stop the run early.
 """
 
 from __future__ import annotations
@@ -103,7 +106,8 @@ class AnnealStats(Stats):
     Attributes
     ----------
     iterations : int
-        Moves proposed (fewer than asked when the deadline came first).
+        Moves proposed (fewer than asked when the deadline came first, or, in the covering
+        annealing, the layout came within its window).
     accepted, rejected : int
         Moves kept, and moves the Metropolis rule, the toe rows' strip (:func:`holds_toe`)
         or the local settle refused.
@@ -156,7 +160,7 @@ class Annealing(Strategy):
         (:func:`holds_toe`), the moves that bring the rest in are fewer to find.
 
         The moves past this one's count are made only while the best layout is short of its
-        count or over its porosity window. Within it, more moves only bring the porosity nearer
+        count or outside its porosity window. Within it, more moves only bring the porosity nearer
         its target by moving blocks inward, and leave the surface barer: on ``cube``, whose
         attempts with rows were within the window before they were annealed, 6000 moves took
         them from 47.8 to 47.1 % and from 17.7-19.1 to 19.6-20.8 % bare (2026-12-07, stop 72)."""
