@@ -72,11 +72,21 @@ from .search.fill import PocketFill
 from .search.hangings import families
 from .search.patterns import InterlockLattice, pattern_for
 from .search.physics import confirm, judged, raised_check, settled_layout, settling_by, stands, verdict
-from .search.problem import SETTLE_EXPONENT, TARGET_POINTS, Clock, Phase, Problem, SettleMeter, Strategy
+from .search.problem import (
+    SETTLE_EXPONENT,
+    TARGET_POINTS,
+    Clock,
+    Phase,
+    Problem,
+    SettleMeter,
+    Strategy,
+    off_window,
+    over,
+)
 from .search.shapes import ShapeCache
 from .search.sites import spread_to_count
 from .search.toe import ToeRows
-from .search.trim import off_window, over, trim_moves
+from .search.trim import trim_moves
 
 #: The default time limit (s): at least this, ``SECONDS_PER_BLOCK`` a required block above it,
 #: and at most ``MAX_DEFAULT_LIMIT`` (issue 24: up to 0.5 s a block, 20 minutes at most).

@@ -426,10 +426,10 @@ def test_a_layout_with_kept_blocks_is_not_taken_where_a_failed_settle_left_it(mo
 
 def test_how_far_off_its_window_a_layout_is_counts_both_sides(mini_reference):
     """A layout taken where its settle left it must be no further off its window than the moved
-    one, below it as above it (``trim.over`` counts only above)."""
+    one, below it as above it (``over`` counts only above)."""
     from dataclasses import replace
 
-    from optimizer.search.trim import off_window, over
+    from optimizer.search.problem import off_window, over
 
     scene, build = mini_reference
     p = build.porosity.percent

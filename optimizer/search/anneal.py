@@ -57,7 +57,7 @@ from geometry.pose import axis_angle_quat, quat_multiply
 from .build import GROUND, Build, Candidate, fill_window
 from .hangings import free, hanging_of
 from .objective import Energy
-from .problem import TARGET_POINTS, Phase, Problem, Stats, Strategy
+from .problem import Phase, Problem, Stats, Strategy, off_window
 from .shapes import ShapeCache
 from .sites import pattern_sites
 from .toe import strip_share
@@ -76,12 +76,6 @@ def holds_toe(scene: Scene, build: Build, key: int, c: Candidate) -> bool:
     toe's strip where it was laid than it did there."""
     points, share = build.toe_rows[key]
     return strip_share(scene, points, c.pose) >= share
-
-
-def within_window(problem: Problem, build: Build) -> bool:
-    """Whether the build has its count, with its porosity within ``TARGET_POINTS`` of the target."""
-    return (len(build) >= problem.required
-            and abs(build.porosity.percent - problem.target) <= TARGET_POINTS)
 
 
 def weak_blocks(build: Build) -> int:
@@ -291,7 +285,8 @@ class Annealing(Strategy):
         accepted = rejected = collided = made = 0
         for it in range(self.iterations):
             if problem.time_left() <= 0 or (self.base is not None and it >= self.base
-                                            and within_window(problem, best)):
+                                            and len(best) >= problem.required
+                                            and off_window(problem, best) == 0.0):
                 break
             made += 1
             temp = t0 * (t_end / t0) ** (it / max(1, self.iterations - 1))

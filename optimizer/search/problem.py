@@ -32,6 +32,16 @@ from .patterns import InterlockLattice
 #: still meet it (issue 4: within 1); ``shoha optimize`` says when it missed by more.
 TARGET_POINTS = 1.0
 
+
+def over(problem: Problem, build: Build) -> float:
+    """How many points the build's porosity lies above its window (0 within it or below)."""
+    return max(0.0, build.porosity.percent - problem.target - TARGET_POINTS)
+
+
+def off_window(problem: Problem, build: Build) -> float:
+    """How many points the build's porosity lies outside its window, either side (0 within it)."""
+    return max(0.0, abs(build.porosity.percent - problem.target) - TARGET_POINTS)
+
 #: A clock: seconds, monotonic. ``time.monotonic`` unless a test injects one.
 Clock = Callable[[], float]
 

@@ -42,7 +42,7 @@ import numpy as np
 
 from .build import Build, Candidate, fill_window
 from .fill import random_drop
-from .problem import TARGET_POINTS, Problem
+from .problem import Problem, over
 from .shapes import ShapeCache
 
 #: Moves at most.
@@ -70,16 +70,6 @@ class TrimStats:
 
     def to_dict(self) -> dict:
         return asdict(self)
-
-
-def over(problem: Problem, build: Build) -> float:
-    """How many points the build's porosity lies above its window (0 within it or below)."""
-    return max(0.0, build.porosity.percent - problem.target - TARGET_POINTS)
-
-
-def off_window(problem: Problem, build: Build) -> float:
-    """How many points the build's porosity lies outside its window, either side (0 within it)."""
-    return max(0.0, abs(build.porosity.percent - problem.target) - TARGET_POINTS)
 
 
 Accept = Callable[[Problem, Build, Candidate], Candidate | None]
