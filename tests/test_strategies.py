@@ -841,3 +841,18 @@ def test_annealing_moves_a_toe_row_block_only_where_it_covers_its_strip_no_less(
     for key, (points, share) in build.toe_rows.items():
         assert shares[id(points)] == share
         assert strip_share(mini, points, build.poses[key]) >= share
+
+
+def test_the_covering_annealing_cools_over_its_own_moves_and_holds_after_them():
+    """The temperature falls from T0 to T0/100 over the annealing's own count of moves and stays
+    there through the covering annealing's extra ones (``temperature``); the plain annealing's
+    schedule, over all its moves, is the one it always had, to the last bit."""
+    from optimizer.search.anneal import temperature
+
+    t0 = 0.0312
+    assert temperature(t0, 0, 600) == t0
+    assert temperature(t0, 599, 600) == pytest.approx(t0 / 100, rel=1e-12)
+    assert all(temperature(t0, it, 600) == temperature(t0, 599, 600) for it in (600, 1234, 5999))
+    assert temperature(t0, 300, 600) == pytest.approx(t0 / 10, rel=1e-2)
+    t_end = t0 / 100.0
+    assert all(temperature(t0, it, 600) == t0 * (t_end / t0) ** (it / 599) for it in range(600))

@@ -22,8 +22,7 @@ more inside the prism, and the toe it was laid to cover is bare again. In the
 attempt that aims to cover, the annealing makes up to ``COVER_FACTOR`` times
 its moves (:meth:`Annealing.covering`): the moves past its own count go on
 only while the best layout is short of its count or outside its porosity
-window (the temperature still falls over all of them, so a run stopped at
-its own count has not cooled).
+window, at the temperature its own count cooled to (:func:`temperature`).
 
 A move whose block would end out of tolerance or interpenetrate another
 (FCL) is rejected outright, never penalised. Otherwise it is accepted by the
@@ -35,9 +34,11 @@ locally (``optimizer.search.physics.raised_check``) before it is kept.
 
 Temperature schedule: T0 is calibrated so that the average uphill move of a
 trial sample is accepted with probability 1/2; T falls geometrically to
-T0/100 over the iterations. The iteration count is fixed, so a seed gives
-one result; the deadline, and in the covering annealing the window, only
-stop the run early.
+T0/100 over the iterations (in the covering annealing, over its own count,
+and stays there after it; until stop 74 it fell over all of them, and a run
+stopped at its own count had made those moves at about 0.63 T0). The
+iteration count is fixed, so a seed gives one result; the deadline, and in
+the covering annealing the window, only stop the run early.
 """
 
 from __future__ import annotations
@@ -69,6 +70,13 @@ MOVES = ("jitter", "yaw", "hanging", "relocate")
 #: How many times the moves the annealing makes in the attempt that aims to cover
 #: (:meth:`Annealing.covering`). Set on ``mini-mesh`` seeds 2-3 (docs/coverage-study.md, stop 72).
 COVER_FACTOR = 10
+
+
+def temperature(t0: float, it: int, cooled: int) -> float:
+    """The temperature of move ``it``: from ``t0`` down to ``t0 / 100``, geometrically, over the
+    first ``cooled`` moves, and held there after them."""
+    t_end = t0 / 100.0  # as the plain annealing has always reckoned it, to the last bit
+    return t0 * (t_end / t0) ** (min(it, cooled - 1) / max(1, cooled - 1))
 
 
 def holds_toe(scene: Scene, build: Build, key: int, c: Candidate) -> bool:
@@ -281,15 +289,15 @@ class Annealing(Strategy):
                 if d > 0:
                     uphill.append(d)
         t0 = (float(np.mean(uphill)) if uphill else 1.0) / math.log(2.0)
-        t_end = t0 / 100.0
         accepted = rejected = collided = made = 0
+        cooled = self.iterations if self.base is None else self.base
         for it in range(self.iterations):
             if problem.time_left() <= 0 or (self.base is not None and it >= self.base
                                             and len(best) >= problem.required
                                             and off_window(problem, best) == 0.0):
                 break
             made += 1
-            temp = t0 * (t_end / t0) ** (it / max(1, self.iterations - 1))
+            temp = temperature(t0, it, cooled)
             kind, key, c = self._propose(problem, build, shapes, rng)
             if c is None:
                 collided += kind != "none"
