@@ -741,6 +741,7 @@ class _Attempt:
     searched: int | None = None  # blocks before the confirming settle
     search_seconds: float = 0.0  # the strategies' time, before the confirming settle
     unmoved: _Attempt | None = None  # before the covering repair moved blocks (for the attempts phase)
+    _written: tuple[Build, float] | None = field(default=None, init=False, repr=False, compare=False)
 
     def reached(self, problem: Problem) -> bool:
         return len(self.build) >= problem.required and self.stable is not False
@@ -756,13 +757,23 @@ class _Attempt:
         return not self.on_target(problem) and now + self.search_seconds <= problem.deadline
 
     def on_target(self, problem: Problem) -> bool:
-        """Reached, and its porosity within ``TARGET_POINTS`` of the target."""
-        return self.reached(problem) and off_window(problem, self.build) == 0.0
+        """Reached, and its porosity as written within ``TARGET_POINTS`` of the target."""
+        return self.reached(problem) and off_window(self.as_written(problem), self.build) == 0.0
 
     def key(self, problem: Problem) -> tuple[bool, int, float]:
-        """Better is larger: standing, then more blocks (up to the count), then porosity nearer the target."""
-        off = abs(self.build.porosity.percent - problem.target) if len(self.build) else np.inf
+        """Better is larger: standing, then more blocks (up to the count), then porosity as
+        written nearer the target."""
+        if not len(self.build):
+            return self.stable is not False, 0, -np.inf
+        off = abs(self.build.porosity.percent - self.as_written(problem).target)
         return self.stable is not False, min(len(self.build), problem.required), -off
+
+    def as_written(self, problem: Problem) -> Problem:
+        """:func:`as_written` of this attempt's layout, its union measured once for each layout
+        (``dataclasses.replace`` of an attempt measures its own again)."""
+        if self._written is None or self._written[0] is not self.build:
+            self._written = (self.build, counted_below(problem.scene, self.build))
+        return replace(problem, target=problem.target - self._written[1])
 
 
 def taken_out(before: Build, after: Build) -> np.ndarray:
@@ -987,7 +998,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     if not new.reached(problem):
         return chosen, f"{what} did not stand, so it was not kept"
     trimmed_note = ""
-    if over(problem, new.build) > 0:
+    if over(new.as_written(problem), new.build) > 0:
         trimmed_note = "; no time was left to move blocks into the design prism"
         if clock() + coverage_reserve(scene) <= problem.deadline:
             # The rows hold much of their volume outside the prism: blocks that stick out are moved
@@ -1103,7 +1114,7 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     if attempt.coverage is None or attempt.coverage.aims_met() == 2:
         return attempt, None
     history: list[tuple[Build, CoverageReport]] = []
-    written = as_written(short, attempt.build)
+    written = attempt.as_written(short)
     moved, after, stats = cover_moves(written, attempt.build, attempt.coverage, history)
     phase = {"strategy": "cover", "attempt": number, "seconds": 0.0, "blocks": len(moved),
              "porosity_percent": moved.porosity.percent, **stats.to_dict(), "stood": None, "undone": 0}
@@ -1178,13 +1189,14 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     the untrimmed one (``moved`` all the moves kept), else of the last trim.
     """
     clock, scene = problem.clock, problem.scene
-    if not attempt.reached(problem) or attempt.stable is not True or over(problem, attempt.build) <= 0:
+    if not attempt.reached(problem) or attempt.stable is not True or over(attempt.as_written(problem),
+                                                                             attempt.build) <= 0:
         return attempt, None
     reserve = settle_reserve(scene, meter=problem.meter)
     short = moves_until(problem, end, reserve)
     if clock() + reserve / 2 > short.deadline:
         return attempt, None
-    short = as_written(short, attempt.build)
+    short = attempt.as_written(short)
     t0 = clock()
     phase: dict[str, Any] = {"strategy": "trim", "attempt": number, "seconds": 0.0, "tries": 0}
     kept, moved = attempt, 0
@@ -1206,7 +1218,7 @@ def trim_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
                           "porosity_percent": kept.build.porosity.percent})  # where the settle left it
         elif kept is attempt:  # none kept yet: the phase tells of this trim
             phase.update(blocks=len(trimmed), **stats.to_dict(), **trial)
-        if (not stats.moved or over(problem, kept.build) <= 0 or trial["stood"] is None
+        if (not stats.moved or over(kept.as_written(problem), kept.build) <= 0 or trial["stood"] is None
                 or clock() + took > short.deadline
                 or clock() + took + settle_reserve(scene, meter=problem.meter) > end):
             break  # nothing moved, within the window, not settled, or no time for another trim
@@ -1226,11 +1238,14 @@ def moves_until(problem: Problem, end: float, reserve: float) -> Problem:
 
 
 def as_written(problem: Problem, build: Build) -> Problem:
-    """``problem`` with its target lowered by :func:`counted_below` of ``build``, for the repairs'
-    moves (``trim_moves``, ``cover_moves``) from ``build``: they judge the porosity window as the
-    search counts it, and may take a layout to the window's edge. Measured only once the repair
-    is sure to move (the union of a 1000-block layout takes about 0.2 s). The repairs' own
-    gates (``on_target``, ``over``) still read the porosity as counted."""
+    """``problem`` with its target lowered by :func:`counted_below` of ``build``: its porosity
+    window as the layout written measures it. The attempts' gates read it (``on_target``, and
+    ``over`` before and within a trim, through ``_Attempt.as_written``, which measures each
+    layout's union once: about 0.2 s for 1000 blocks), and so do the repairs' moves
+    (``trim_moves``, ``cover_moves``), which may take a layout to the window's edge. Until stop
+    74 the gates read the porosity as counted, and a layout over its window only as written
+    was not trimmed. The annealing's stop (``Annealing.covering``) still reads it as counted:
+    it is asked after every move."""
     return replace(problem, target=problem.target - counted_below(problem.scene, build))
 
 
@@ -1278,7 +1293,8 @@ def _settled_again(problem: Problem, attempt: _Attempt, build: Build, rng: np.ra
             after, again = settled_layout(settling_by(problem, end), build, result, rng)
         except Stopped:
             return attempt  # not known to stand where the settle left it
-        nearer = off_window(problem, after) <= off_window(problem, build) + 1e-9
+        nearer = off_window(as_written(problem, after), after) <= off_window(as_written(problem, build),
+                                                                             build) + 1e-9
         if len(after) == len(build) and again.stable and nearer:
             measure = changes.get("coverage") is not None
             # Measured up to ``end``, not the search's deadline: the moves and two settles may

@@ -1507,3 +1507,34 @@ def test_the_repairs_judge_the_window_as_the_layout_written_measures_it():
     written = as_written(pr, build)
     assert written.target == pytest.approx(pr.target - expected, rel=1e-9)
     assert written.deadline == pr.deadline
+
+
+def test_an_attempt_is_on_target_only_where_the_layout_written_is_within_its_window():
+    """The attempts' gates read the porosity as written (``_Attempt.as_written``), not as the
+    search counts it: two cubes 5 mm into each other, with the target set so that the counted
+    porosity is half the overlap inside the window and the written one half of it outside, are
+    not on target (until stop 74 they were, and such a layout was written over its window and
+    not trimmed). An attempt replaced by another layout measures that layout's union anew."""
+    from optimizer.api import _Attempt, counted_below
+    from optimizer.search.problem import TARGET_POINTS, off_window
+
+    scene = load_scene(str(ROOT / "benchmarks" / "scenes" / "cube.toml"))
+    side = scene.block.height
+    z0 = scene.design.z_bottom + side / 2
+    apart, into = Build(scene), Build(scene)
+    for build, gap in ((apart, 0.0), (into, 0.005)):
+        build.place_at(Pose([0.0, 6.0, z0], [1.0, 0.0, 0.0, 0.0]))
+        build.place_at(Pose([0.0, 6.0, z0 + side - gap], [1.0, 0.0, 0.0, 0.0]))
+    overlap = counted_below(scene, into)
+    assert overlap > 0 and counted_below(scene, apart) == pytest.approx(0.0, abs=1e-9)
+    counted = into.porosity.percent
+    pr = replace(problem(scene), required=2, target=counted - TARGET_POINTS + overlap / 2)
+    assert off_window(pr, into) == 0.0  # as counted, within its window
+    attempt = _Attempt(into, [], {}, {}, True)
+    assert not attempt.on_target(pr)
+    assert attempt.as_written(pr).target == pytest.approx(pr.target - overlap, rel=1e-9)
+    # The same target with the cubes apart: the counted porosity is the written one.
+    level = replace(pr, target=apart.porosity.percent - TARGET_POINTS + overlap / 2)
+    assert _Attempt(apart, [], {}, {}, True).on_target(level)
+    moved = replace(_Attempt(apart, [], {}, {}, True), build=into)
+    assert not moved.on_target(pr)
