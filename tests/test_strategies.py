@@ -843,11 +843,14 @@ def test_annealing_moves_a_toe_row_block_only_where_it_covers_its_strip_no_less(
         assert strip_share(mini, points, build.poses[key]) >= share
 
 
-def test_the_covering_annealing_cools_over_its_own_moves_and_holds_after_them():
+def test_the_covering_annealing_cools_over_its_own_moves_and_holds_after_them(tiny, seeded, monkeypatch):
     """The temperature falls from T0 to T0/100 over the annealing's own count of moves and stays
-    there through the covering annealing's extra ones (``temperature``); the plain annealing's
-    schedule, over all its moves, is the one it always had, to the last bit."""
-    from optimizer.search.anneal import temperature
+    there through the covering annealing's extra ones (``temperature``, which the covering run
+    asks with its own count, the plain one with all its moves); the plain annealing's schedule
+    is the one it always had, to the last bit."""
+    from optimizer.search import anneal
+    from optimizer.search.anneal import COVER_FACTOR, temperature
+    from optimizer.search.problem import TARGET_POINTS
 
     t0 = 0.0312
     assert temperature(t0, 0, 600) == t0
@@ -856,3 +859,17 @@ def test_the_covering_annealing_cools_over_its_own_moves_and_holds_after_them():
     assert temperature(t0, 300, 600) == pytest.approx(t0 / 10, rel=1e-2)
     t_end = t0 / 100.0
     assert all(temperature(t0, it, 600) == t0 * (t_end / t0) ** (it / 599) for it in range(600))
+    # What each run asks: outside its window, the covering run makes all its moves.
+    asked: list[tuple[int, int]] = []
+
+    def recorded(t0: float, it: int, cooled: int) -> float:
+        asked.append((it, cooled))
+        return temperature(t0, it, cooled)
+
+    monkeypatch.setattr(anneal, "temperature", recorded)
+    over = replace(problem(tiny), target=seeded.build.porosity.percent - 5 * TARGET_POINTS)
+    Annealing(iterations=12).covering().run(over, seeded, np.random.default_rng(4))
+    assert asked == [(it, 12) for it in range(COVER_FACTOR * 12)]
+    asked.clear()
+    Annealing(iterations=12).run(over, seeded, np.random.default_rng(4))
+    assert asked == [(it, 12) for it in range(12)]

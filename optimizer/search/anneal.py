@@ -36,7 +36,7 @@ Temperature schedule: T0 is calibrated so that the average uphill move of a
 trial sample is accepted with probability 1/2; T falls geometrically to
 T0/100 over the iterations (in the covering annealing, over its own count,
 and stays there after it; until stop 74 it fell over all of them, and a run
-stopped at its own count had made those moves at about 0.63 T0). The
+stopped at its own count had cooled only to about 0.63 T0). The
 iteration count is fixed, so a seed gives one result; the deadline, and in
 the covering annealing the window, only stop the run early.
 """
@@ -74,7 +74,17 @@ COVER_FACTOR = 10
 
 def temperature(t0: float, it: int, cooled: int) -> float:
     """The temperature of move ``it``: from ``t0`` down to ``t0 / 100``, geometrically, over the
-    first ``cooled`` moves, and held there after them."""
+    first ``cooled`` moves, and held there after them.
+
+    Parameters
+    ----------
+    t0 : float
+        The starting temperature, energy units (:class:`optimizer.objective.Energy`).
+    it : int
+        The move, from 0.
+    cooled : int
+        The moves over which it falls: the annealing's own count.
+    """
     t_end = t0 / 100.0  # as the plain annealing has always reckoned it, to the last bit
     return t0 * (t_end / t0) ** (min(it, cooled - 1) / max(1, cooled - 1))
 
