@@ -767,20 +767,24 @@ class _Attempt:
         decides, and the union is not measured)."""
         if not len(self.build):
             return self.stable is not False, 0, -np.inf
-        written = self.as_written(problem) if len(self.build) >= problem.required else problem
-        off = abs(self.build.porosity.percent - written.target)
-        return self.stable is not False, min(len(self.build), problem.required), -off
+        count = min(len(self.build), problem.required)
+        porosity = self.written_percent(problem) if count == problem.required else self.build.porosity.percent
+        return self.stable is not False, count, -abs(porosity - problem.target)
 
-    def as_written(self, problem: Problem) -> Problem:
-        """:func:`as_written` of this attempt's layout, its union measured once for each layout
+    def written_gap(self, scene: Scene) -> float:
+        """:func:`counted_below` of this attempt's layout, measured once for each layout
         (``dataclasses.replace`` of an attempt measures its own again)."""
         if self._written is None or self._written[0] is not self.build:
-            self._written = (self.build, counted_below(problem.scene, self.build))
-        return replace(problem, target=problem.target - self._written[1])
+            self._written = (self.build, counted_below(scene, self.build))
+        return self._written[1]
+
+    def as_written(self, problem: Problem) -> Problem:
+        """:func:`as_written` of this attempt's layout, from :meth:`written_gap`."""
+        return replace(problem, target=problem.target - self.written_gap(problem.scene))
 
     def written_percent(self, problem: Problem) -> float:
         """The porosity of this attempt's layout as written (the blocks' union), percent."""
-        return self.build.porosity.percent + problem.target - self.as_written(problem).target
+        return self.build.porosity.percent + self.written_gap(problem.scene)
 
 
 def taken_out(before: Build, after: Build) -> np.ndarray:
