@@ -383,6 +383,49 @@ def test_an_attempt_with_rows_settled_past_the_search_deadline_is_measured_and_k
     assert tried[1].coverage.bare_share_percent == pytest.approx(measured.bare_share_percent, abs=1e-9)
 
 
+@pytest.mark.parametrize("new_after, best_after, kept", [
+    (3.0, 10.0, 1),    # repaired, the attempt with rows covers best
+    (9.0, 8.0, 0),     # it covers better than the first unrepaired, not once that is repaired too
+    (15.5, None, 0),   # repaired, it still covers no better: the first is left for the end
+])
+def test_attempts_are_weighed_as_repaired(mini_reference, monkeypatch, new_after, best_after, kept):
+    """An attempt with rows that covers no better than the layout it would replace is weighed
+    once its covering moves are made (the layout kept is written repaired); the one it would
+    replace is then repaired too, unless the new one still covers no better. The search and the
+    moves are stood in for: the new layout (``mini``'s seed-1 reference, 15.8 % bare, measured)
+    against one said to be 15.0 % bare, and the moves giving the bare shares of the case."""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    pr = problem(scene, seconds=100.0)
+    measured = coverage(scene, build.placed())
+    assert measured.aims_met() == 0 and measured.bare_share_percent > 15.0
+    best = api._Attempt(build, [], {}, {"stable": True}, True,
+                        coverage=replace(measured, bare_share_percent=15.0))
+    monkeypatch.setattr(api, "_attempt", lambda *args, **kwargs: api._Attempt(
+        build.copy(), [], {}, {"stable": True}, True, searched=len(build)))
+    repaired = []
+
+    def repair(problem, attempt, rng, number, end):
+        bare = new_after if number == 2 else best_after
+        repaired.append(number)
+        phase = {"strategy": "cover", "attempt": number}
+        return replace(attempt, coverage=replace(attempt.coverage, bare_share_percent=bare),
+                       unmoved=attempt, phases=[*attempt.phases, phase]), phase
+
+    monkeypatch.setattr(api, "cover_repair", repair)
+    tried = [best]
+    chosen, words = api.covered_attempt(pr, api.default_strategies(), tried, 0,
+                                        lambda step, n: np.random.default_rng(1), True, pr.deadline + 20.0)
+    assert chosen == kept, words
+    assert repaired == ([2] if best_after is None else [2, 1])
+    assert tried[1].coverage.bare_share_percent == new_after
+    assert tried[0].coverage.bare_share_percent == (15.0 if best_after is None else best_after)
+    if kept == 0:
+        moved = "once blocks were moved to bare areas"
+        assert words.endswith(f"covered no better ({new_after:.1f}% bare {moved})")
+
+
 def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypatch):
     """Where the layout the failed settle left covers no better than before the moves (here the
     settle is made to leave the blocks where they stood before the moves), the attempt is kept
