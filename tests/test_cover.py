@@ -12,7 +12,7 @@ from geometry.coverage import coverage
 from geometry.layout import read_layout
 from geometry.scene import load_scene
 from optimizer.search import cover, toe
-from optimizer.search.build import Build
+from optimizer.search.build import Build, Candidate
 from optimizer.search.patterns import lattice_for
 from optimizer.search.problem import Problem
 from tests.clock import WorkClock
@@ -20,6 +20,7 @@ from tests.conftest import ROOT
 from tests.test_strategies import problem
 
 REFERENCE = ROOT / "tests" / "data" / "mini-reference.json"
+FELL = ROOT / "tests" / "data" / "mini-cover-fell-seed4.json"
 
 
 @pytest.fixture(scope="module")
@@ -480,3 +481,30 @@ def test_how_far_off_its_window_a_layout_is_counts_both_sides(mini_reference):
     assert off_window(replace(problem(scene), target=p + 1.5), build) == pytest.approx(0.5)
     assert off_window(replace(problem(scene), target=p - 1.5), build) == pytest.approx(0.5)
     assert over(replace(problem(scene), target=p + 1.5), build) == 0.0  # what the check used before
+
+
+def test_a_move_onto_a_block_that_tips_under_it_is_refused():
+    """The covering moves of ``mini`` seed 4 (tests/data/mini-cover-fell-seed4.json, whose last
+    three blocks are the moves'): the layout falls when settled whole, the last block moved
+    sliding off the one under it. Let go among fixed neighbours (``settle_in``) each moved block
+    rests where it is; let go with the blocks it rests on (``held_up``) the last one falls, as
+    in the whole settle, and the two before it stand."""
+    from optimizer.search.physics import held_up, settle_in
+    from settle import settle
+
+    scene = load_scene("mini")
+    placements = read_layout(FELL).blocks
+    whole = settle(scene, [(p.id, scene.block, p.pose) for p in placements], seed=0)
+    assert not whole.stable and not whole.blocks[-1].stable
+    assert whole.blocks[-1].displacement_m > 1.0
+    pr = problem(scene, seconds=60.0)
+    for last in (72, 73, 74):
+        build = Build(scene)
+        for p in placements[:last + 1]:
+            key = build.place_at(p.pose)
+        candidate = Candidate(build.shapes[key], build.poses[key], build.supports[key],
+                              build.porosity.contribution(key))
+        build.remove(key)
+        assert any(k >= 0 for k in candidate.support), "it rests on blocks, for the test to mean it"
+        assert settle_in(pr, build, candidate) is candidate
+        assert held_up(pr, build, candidate) is (last != 74)

@@ -10,7 +10,8 @@ blocks nearer the wall covers it.
 Each move takes one such block out and lowers it again, in any hanging, at
 the node of a grid near where it stood that covers the most bare area. It is
 kept only if the block stays where it was lowered when let go among its
-neighbours (or comes to rest valid: ``physics.settle_in``), the porosity
+neighbours (or comes to rest valid: ``physics.settle_in``), stays so when the
+blocks it rests on are let go with it (``physics.held_up``), the porosity
 stays within ``TARGET_POINTS`` of the target, and the exact coverage is
 better (``CoverageReport.better_than``). The moves are greedy, one at a
 time: the best of the first ``BLOCKS_TRIED`` blocks (most bare area in
@@ -40,7 +41,7 @@ from geometry.pose import Pose
 from .build import Build, Candidate
 from .fill import SWEEP_STEP, lowered
 from .hangings import spread_yaws
-from .physics import settle_in
+from .physics import held_up, settle_in
 from .problem import TARGET_POINTS, Problem
 from .shapes import ShapeCache
 
@@ -210,7 +211,8 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
                 continue
             after = coverage_after(scene, others + [(key, scene.block, rested.pose)], without,
                                    [rested.pose.position])
-            if best is None or after.better_than(best[0]):
+            # Asked last, of the one that would be best: it settles the blocks under it too.
+            if (best is None or after.better_than(best[0])) and held_up(problem, build, rested):
                 best = (after, rested)
     finally:
         build.collide.add(key, build.block, build.poses[key])
@@ -265,7 +267,8 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, hung: list
             continue
         others = [p for p in build.placed() if p[0] != key]
         after = coverage_after(scene, others + [(key, block, rested.pose)], without, [rested.pose.position])
-        if after.better_than(report) and (best is None or after.better_than(best[0])):
+        if after.better_than(report) and (best is None or after.better_than(best[0])) \
+                and held_up(problem, build, rested):
             best = (after, key, rested)
     return best
 

@@ -15,7 +15,8 @@ volume outside the prism, and lowers it again where it holds more inside:
 volume they hold inside, the best let go among their fixed neighbours
 (``accept``; a drop on the bare foundation is kept where it touched) until
 one comes to rest inside the zone with more inside than the block held
-before. The move is kept if ``keep`` accepts the new build (a
+before and stays so when the blocks it rests on are let go with it
+(``physics.held_up``). The move is kept if ``keep`` accepts the new build (a
 coverage that must stay better than another attempt's). Moves go on, one at a
 time, until the porosity is within ``TARGET_POINTS`` of the target, or
 ``PATIENCE`` rounds in a row find no move (each round draws anew), or the
@@ -42,6 +43,7 @@ import numpy as np
 
 from .build import Build, Candidate, fill_window
 from .fill import random_drop
+from .physics import held_up
 from .problem import Problem, over
 from .shapes import ShapeCache
 
@@ -125,7 +127,7 @@ def _moves(problem: Problem, build: Build, accept: Accept, rng: np.random.Genera
                     break
                 stats.tried += 1
                 rested = accept(problem, trial, c)
-                if rested is None or rested.inside < need:
+                if rested is None or rested.inside < need or not held_up(problem, trial, rested):
                     continue
                 trial.place(rested)
                 if keep is None or keep(trial):
