@@ -506,7 +506,9 @@ def optimize(
         kept still leaves it bare and that attempt's time is left, once more
         (:func:`covered_attempts`). With ``settle_layout``, move blocks that
         carry nothing to bare areas (:func:`cover_repair`; kept blocks never
-        move): an attempt with rows as soon as it is kept, else the layout kept.
+        move): an attempt with rows as soon as it is kept, else the layout kept;
+        and, to weigh an attempt with rows that covers no better, the layout
+        kept and then that attempt (:func:`covered_attempt`).
     """
     if scene.kind != "3d":
         raise InputError(f"{scene.source or scene.name}: a {scene.kind} scene is a 2D slice for physics "
@@ -913,10 +915,11 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
     made, note, kept_note, took, without = 0, None, None, None, None
     plain = tried[chosen]
     while made < COVER_ATTEMPTS:
-        before, was, t0 = len(tried), chosen, problem.now()
+        before, was, t0, moved_before = len(tried), chosen, problem.now(), _cover_seconds(tried)
         chosen, words = covered_attempt(problem, strategies, tried, chosen, stream, settle_layout, end,
                                         needs=took, without=without, number=made + 1)
-        took = problem.now() - t0  # its trim too
+        # Its trim too, not the covering moves it made to weigh it (the next attempt makes its own).
+        took = problem.now() - t0 - (_cover_seconds(tried) - moved_before)
         if len(tried) == before:  # none made: covered, or no time left for one
             if not made:
                 note = words
@@ -938,6 +941,11 @@ def covered_attempts(problem: Problem, strategies: Sequence[Strategy], tried: li
     if made > 1 and note is not None:
         note = f"{made} attempts with toe rows first were made: {note}"
     return chosen, note
+
+
+def _cover_seconds(tried: list[_Attempt]) -> float:
+    """Seconds the attempts' covering moves (their ``cover`` phases) have taken."""
+    return sum(p["seconds"] for t in tried for p in t.phases if p["strategy"] == "cover")
 
 
 def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: list[_Attempt], chosen: int,
@@ -975,10 +983,11 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     Appends the attempt to ``tried`` and returns the index of the one to
     keep, the new one if it reaches its count and porosity too and covers
     better, with what came of it in words (None where the layout covers).
-    One that covers no better is weighed once repaired (:func:`repair_once`, drawing from
-    ``stream("rows cover", number)``), and where it then covers better the chosen one is
-    repaired too (``stream("cover", chosen + 1)``, as at the end of the run) and the two are
-    weighed so; each repaired attempt replaces its own in ``tried``.
+    One that covers no better is weighed against the chosen one repaired
+    (:func:`repair_once`, ``stream("cover", chosen + 1)``, as at the end of the run), and, if
+    it still covers no better, once repaired itself (``stream("rows cover", number)``); each
+    repaired attempt replaces its own in ``tried``. Neither is repaired where the chosen one
+    meets both aims.
     """
     clock = problem.clock
     best = tried[chosen]
@@ -1061,22 +1070,24 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
             new.coverage = problem.coverage(new.build.placed(), until=end)
         if new.coverage is None:
             return chosen, f"{what} reached the count, but no time was left to measure its coverage"
-    if not new.coverage.better_than(best.coverage) and settle_layout:
-        # Weighed as they would be written, each repaired (the layout kept is, at the end). The
-        # covering moves gain more on a layout with rows: on ``wall-shake`` seed 3 the attempt
-        # with rows, at 9.8 % bare, was dropped against the first attempt's 7.9 %, which its
-        # moves then took to 5.6 %; on seed 1 they took the attempt with rows from 9.7 to 3.9 %.
-        # The one kept is not repaired twice (``repair_once``).
-        new, _ = repair_once(problem, new, stream("rows cover", number), len(tried), end)
-        tried[-1] = new
-        if new.coverage.better_than(best.coverage):
-            best, _ = repair_once(problem, best, stream("cover", chosen + 1), chosen + 1, end)
-            tried[chosen] = best
+    without_rows = best.coverage.bare_share_percent if without is None else without
+    if not new.coverage.better_than(best.coverage) and settle_layout and best.coverage.aims_met() < 2:
+        # Weighed as they would be written, each repaired. The covering moves gain more on a
+        # layout with rows: on ``wall-shake`` seed 3 the attempt with rows, at 9.8 % bare, was
+        # dropped against the first attempt's 7.9 %, which its moves then took to 5.6 %; its own
+        # took it to 4.3 %. The one it would replace first, as the end of the run would
+        # (``repair_once``: not twice): a repair that found no time then leaves that layout as
+        # it was before this change, and the new one is weighed against the one written.
+        best, _ = repair_once(problem, best, stream("cover", chosen + 1), chosen + 1, end)
+        tried[chosen] = best
+        if not new.coverage.better_than(best.coverage) and best.coverage.aims_met() < 2:
+            new, _ = repair_once(problem, new, stream("rows cover", number), len(tried), end)
+            tried[-1] = new
     if not new.coverage.better_than(best.coverage):
         moved = "" if new.unmoved is None else " once blocks were moved to bare areas"
         return chosen, f"{what} covered no better ({new.coverage.bare_share_percent:.1f}% bare{moved})"
-    bare = best.coverage.bare_share_percent if without is None else without
-    return len(tried) - 1, f"the layout is that of {what}{trimmed_note}; without them {bare:.1f}% was bare"
+    return len(tried) - 1, (f"the layout is that of {what}{trimmed_note}; "
+                            f"without them {without_rows:.1f}% was bare")
 
 
 def longer_annealing(attempt: _Attempt) -> float:

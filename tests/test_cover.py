@@ -384,17 +384,19 @@ def test_an_attempt_with_rows_settled_past_the_search_deadline_is_measured_and_k
     assert tried[1].coverage.bare_share_percent == pytest.approx(measured.bare_share_percent, abs=1e-9)
 
 
-@pytest.mark.parametrize("new_after, best_after, kept", [
-    (3.0, 10.0, 1),    # repaired, the attempt with rows covers best
-    (9.0, 8.0, 0),     # it covers better than the first unrepaired, not once that is repaired too
-    (15.5, None, 0),   # repaired, it still covers no better: the first is left for the end
+@pytest.mark.parametrize("best_after, new_after, kept, repaired", [
+    (14.0, 3.0, 1, [1, 2]),     # repaired too, the attempt with rows covers best
+    (8.0, 9.0, 0, [1, 2]),      # still no better once repaired
+    (15.0, 3.0, 1, [1, 2]),     # the other's moves found nothing (no time): weighed as written
+    ((4.0, 0.5), None, 0, [1]),  # repaired, the other meets both aims: no more moves
 ])
-def test_attempts_are_weighed_as_repaired(mini_reference, monkeypatch, new_after, best_after, kept):
+def test_attempts_are_weighed_as_repaired(mini_reference, monkeypatch, best_after, new_after, kept, repaired):
     """An attempt with rows that covers no better than the layout it would replace is weighed
-    once its covering moves are made (the layout kept is written repaired); the one it would
-    replace is then repaired too, unless the new one still covers no better. The search and the
-    moves are stood in for: the new layout (``mini``'s seed-1 reference, 15.8 % bare, measured)
-    against one said to be 15.0 % bare, and the moves giving the bare shares of the case."""
+    against that layout repaired (it is written repaired), and, if it still covers no better,
+    once its own covering moves are made. The search and the moves are stood in for: the new
+    layout (``mini``'s seed-1 reference, 15.8 % bare, measured) against one said to be 15.0 %
+    bare, the moves giving the bare shares of the case (the first attempt's, numbered 1, then
+    the new one's, numbered 2)."""
     import optimizer.api as api
 
     scene, build = mini_reference
@@ -405,26 +407,48 @@ def test_attempts_are_weighed_as_repaired(mini_reference, monkeypatch, new_after
                         coverage=replace(measured, bare_share_percent=15.0))
     monkeypatch.setattr(api, "_attempt", lambda *args, **kwargs: api._Attempt(
         build.copy(), [], {}, {"stable": True}, True, searched=len(build)))
-    repaired = []
+    calls = []
 
     def repair(problem, attempt, rng, number, end):
-        bare = new_after if number == 2 else best_after
-        repaired.append(number)
-        phase = {"strategy": "cover", "attempt": number}
-        return replace(attempt, coverage=replace(attempt.coverage, bare_share_percent=bare),
-                       unmoved=attempt, phases=[*attempt.phases, phase]), phase
+        calls.append(number)
+        after = best_after if number == 1 else new_after
+        if after == 15.0:  # no move made
+            return attempt, None
+        bare, far = after if isinstance(after, tuple) else (after, attempt.coverage.max_bare_m)
+        return replace(attempt, coverage=replace(attempt.coverage, bare_share_percent=bare, max_bare_m=far),
+                       unmoved=attempt), {"strategy": "cover", "attempt": number, "seconds": 0.0}
 
     monkeypatch.setattr(api, "cover_repair", repair)
     tried = [best]
     chosen, words = api.covered_attempt(pr, api.default_strategies(), tried, 0,
                                         lambda step, n: np.random.default_rng(1), True, pr.deadline + 20.0)
     assert chosen == kept, words
-    assert repaired == ([2] if best_after is None else [2, 1])
-    assert tried[1].coverage.bare_share_percent == new_after
-    assert tried[0].coverage.bare_share_percent == (15.0 if best_after is None else best_after)
+    assert calls == repaired
     if kept == 0:
-        moved = "once blocks were moved to bare areas"
-        assert words.endswith(f"covered no better ({new_after:.1f}% bare {moved})")
+        assert words.endswith("once blocks were moved to bare areas)" if 2 in repaired else "bare)"), words
+    else:
+        assert words.endswith("without them 15.0% was bare"), words  # the first layout as it was made
+    # Each repaired attempt stands in ``tried`` for its own, and is not repaired again at the end.
+    for i in range(2):
+        if i + 1 in repaired and (best_after if i == 0 else new_after) != 15.0:
+            assert tried[i].unmoved is not None and tried[i].phases[-1]["strategy"] == "cover"
+            assert api.repair_once(pr, tried[i], None, i + 1, 0.0)[0] is tried[i]
+
+
+def test_a_move_onto_a_block_that_would_tip_is_not_made(mini_reference, monkeypatch):
+    """The covering moves ask ``held_up`` of each move before they make it: told no every time,
+    they make none. (With the real check the first move is made:
+    ``test_a_move_covers_more_and_keeps_the_layout_valid``.)"""
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 1)
+    monkeypatch.setattr(cover, "GROUPS", 1)
+    monkeypatch.setattr(cover, "FAR_CHECKS", 20)
+    asked = []
+    monkeypatch.setattr(cover, "held_up", lambda *args, **kwargs: asked.append(args[2]) or False)
+    before = coverage(scene, build.placed())
+    moved, after, stats = cover.cover_moves(problem(scene), build, before)
+    assert asked, "a move was found, for the test to mean anything"
+    assert stats.moved == 0 and after is before
 
 
 def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypatch):
@@ -508,3 +532,10 @@ def test_a_move_onto_a_block_that_tips_under_it_is_refused():
         assert any(k >= 0 for k in candidate.support), "it rests on blocks, for the test to mean it"
         assert settle_in(pr, build, candidate) is candidate
         assert held_up(pr, build, candidate) is (last != 74)
+    # The block under the last one stands when let go without it: the fall is the candidate's.
+    under = [k for k in candidate.support if k >= 0]
+    reach = 2.5 * scene.block.bounding_radius
+    near = {j for k in under for j in build.collide.neighbours(build.poses[k].position, reach)}
+    alone = settle(scene, [(k, scene.block, build.poses[k]) for k in sorted(near)], seed=0,
+                   movable=set(under), seconds=2.0)
+    assert alone.stable

@@ -1291,7 +1291,7 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
         events.append(("repair", number))
         moved = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=7.0), seconds=1.0,
                                 phases=attempt.phases)
-        return moved, {"strategy": "cover", "attempt": number}
+        return moved, {"strategy": "cover", "attempt": number, "seconds": 0.0}
 
     monkeypatch.setattr(api, "covered_attempt", stand_in)
     monkeypatch.setattr(api, "cover_repair", repair)
@@ -1306,8 +1306,8 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
                        (False, None): [("attempt", 15.0), ("attempt", 15.0)],
                        (None, None): [("attempt", 15.0)]}[kept]
     assert events == expected_events
-    assert all(t.phases == [{"strategy": "cover", "attempt": i + 1}] for i, t in enumerate(tried)
-               if ("repair", i + 1) in events)
+    assert all(t.phases == [{"strategy": "cover", "attempt": i + 1, "seconds": 0.0}]
+               for i, t in enumerate(tried) if ("repair", i + 1) in events)
     expected = {2: f"{made} attempts with toe rows first were made: ", 1: "", 0: ""}[made]
     if kept[0] is None:
         assert chosen == 0 and words == "no time was left"
@@ -1320,6 +1320,34 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
     else:
         assert chosen == 0 and words == "attempt 1"
 
+
+
+def test_the_next_attempt_with_rows_is_timed_without_the_moves_that_weighed_the_last(monkeypatch):
+    """``covered_attempts`` tells the next attempt with rows how long the last one took, without
+    the covering moves made within it to weigh it (``covered_attempt``, stood in for: 10 s, of
+    which 4 s of moves on the attempt it made and 1 s on the one it was weighed against)."""
+    from types import SimpleNamespace
+
+    import optimizer.api as api
+
+    monkeypatch.setattr(api, "COVER_ATTEMPTS", 2)
+    now, told = [0.0], []
+    plain = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=15.0), seconds=1.0, phases=[])
+    tried = [plain]
+
+    def stand_in(problem_, strategies, tried_, chosen, stream, settle_layout, end, needs=None, without=None,
+                 number=1):
+        told.append(needs)
+        now[0] += 10.0
+        tried_[chosen].phases.append({"strategy": "cover", "attempt": chosen + 1, "seconds": 1.0})
+        made = {"strategy": "cover", "attempt": len(tried_) + 1, "seconds": 4.0}
+        tried_.append(SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=9.0), seconds=1.0,
+                                      phases=[made]))
+        return chosen, "covered no better"
+
+    monkeypatch.setattr(api, "covered_attempt", stand_in)
+    api.covered_attempts(SimpleNamespace(now=lambda: now[0]), [], tried, 0, lambda step, n: None, True, 0.0)
+    assert told == [None, 5.0]
 
 
 def test_the_layout_kept_is_repaired_once(monkeypatch):

@@ -73,6 +73,18 @@ def test_a_move_the_caller_refuses_is_not_made(rough):
     assert len({k for t in taken for k in t}) == len(taken), taken
 
 
+def test_a_move_onto_a_block_that_would_tip_is_not_made(rough, monkeypatch):
+    """The trim asks ``held_up`` of each block come to rest before it moves it there: told no
+    every time, it moves none. (With the real check, seed 1 moves blocks:
+    ``test_blocks_that_stick_out_are_moved_into_the_prism``.)"""
+    scene, build = rough
+    asked = []
+    monkeypatch.setattr(trim, "held_up", lambda *args, **kwargs: asked.append(args[2]) or False)
+    trimmed, stats = trim.trim_moves(problem(scene), build, raised_check, np.random.default_rng(1))
+    assert asked, "blocks came to rest, for the test to mean anything"
+    assert stats.moved == 0 and trimmed.porosity.percent == build.porosity.percent
+
+
 def test_a_layout_within_its_window_is_left_as_it_is():
     scene = load_scene("mini")
     build = _build(scene, ROOT / "tests" / "data" / "mini-reference.json")

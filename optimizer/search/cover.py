@@ -211,8 +211,9 @@ def _best_for(problem: Problem, build: Build, key: int, report: CoverageReport, 
                 continue
             after = coverage_after(scene, others + [(key, scene.block, rested.pose)], without,
                                    [rested.pose.position])
-            # Asked last, of the one that would be best: it settles the blocks under it too.
-            if (best is None or after.better_than(best[0])) and held_up(problem, build, rested):
+            # Asked last, of one that would be the move: it settles the blocks under it too.
+            if after.better_than(report) and (best is None or after.better_than(best[0])) \
+                    and held_up(problem, build, rested):
                 best = (after, rested)
     finally:
         build.collide.add(key, build.block, build.poses[key])
@@ -268,7 +269,7 @@ def _far_move(problem: Problem, build: Build, report: CoverageReport, hung: list
         others = [p for p in build.placed() if p[0] != key]
         after = coverage_after(scene, others + [(key, block, rested.pose)], without, [rested.pose.position])
         if after.better_than(report) and (best is None or after.better_than(best[0])) \
-                and held_up(problem, build, rested):
+                and held_up(problem, build, rested, gone=(key,)):
             best = (after, key, rested)
     return best
 

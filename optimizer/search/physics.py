@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -120,7 +121,7 @@ def _let_go(problem: Problem, placed: list, key: int) -> SettleResult | None:
     return None if result.diverged else result
 
 
-def held_up(problem: Problem, build: Build, candidate: Candidate) -> bool:
+def held_up(problem: Problem, build: Build, candidate: Candidate, gone: Collection[int] = ()) -> bool:
     """Whether a candidate at rest (:func:`settle_in`) stays so when the blocks it rests on are
     let go with it: the candidate and its supports (never kept ones) free, the blocks around
     them held fixed, judged by the whole settle's thresholds.
@@ -130,18 +131,23 @@ def held_up(problem: Problem, build: Build, candidate: Candidate) -> bool:
     ``mini`` seed 4 (the attempt with rows) four covering moves that met both coverage aims
     fell so: the last block moved rested on one that tipped 12 degrees under it, and it slid
     1.5 m down the slope. Let go with its supports it fell the same way, in 0.04 s of
-    settling; the three moves before it did not (2026-12-07, stop 75). A candidate on the
-    foundation alone is held up.
+    settling; the other two blocks moved did not (2026-12-07, stop 75). A candidate on the
+    foundation alone is held up. Kept blocks are let go as the whole settle lets them go
+    (:func:`judged`: not those inside another). ``gone``: blocks the move takes out, left out
+    of the check. The blocks resting on a support are held fixed, so they neither load it nor
+    let it go: the check is cheap, not whole.
     """
-    supports = {k for k in candidate.support if k != GROUND and k not in build.kept}
+    held = set(gone)
+    supports = {k for k in candidate.support if k != GROUND and k not in held and not (
+        k in build.kept and build.collide.query(build.block, build.poses[k], exclude=(k,), first=True))}
     if not supports:
         return True
     key = -2  # not a key any build uses
     block = build.block
     reach = 2.5 * block.bounding_radius
-    around = set(build.collide.neighbours(candidate.pose.position, reach))
+    around = set(build.collide.neighbours(candidate.pose.position, reach, exclude=held))
     for k in supports:
-        around.update(build.collide.neighbours(build.poses[k].position, reach))
+        around.update(build.collide.neighbours(build.poses[k].position, reach, exclude=held))
     placed = [(k, block, build.poses[k]) for k in sorted(around)] + [(key, block, candidate.pose)]
     result = settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key, *supports})
     return bool(result.stable) and not result.diverged
