@@ -1071,7 +1071,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
         if new.coverage is None:
             return chosen, f"{what} reached the count, but no time was left to measure its coverage"
     without_rows = best.coverage.bare_share_percent if without is None else without
-    if not new.coverage.better_than(best.coverage) and settle_layout and best.coverage.aims_met() < 2:
+    if not new.coverage.better_than(best.coverage) and settle_layout:  # best misses an aim (above)
         # Weighed as they would be written, each repaired. The covering moves gain more on a
         # layout with rows: on ``wall-shake`` seed 3 the attempt with rows, at 9.8 % bare, was
         # dropped against the first attempt's 7.9 %, which its moves then took to 5.6 %; its own

@@ -138,8 +138,7 @@ def held_up(problem: Problem, build: Build, candidate: Candidate, gone: Collecti
     let it go: the check is cheap, not whole.
     """
     held = set(gone)
-    supports = {k for k in candidate.support if k != GROUND and k not in held and not (
-        k in build.kept and build.collide.query(build.block, build.poses[k], exclude=(k,), first=True))}
+    supports = {k for k in candidate.support if k != GROUND and k not in held and not kept_inside(build, k)}
     if not supports:
         return True
     key = -2  # not a key any build uses
@@ -273,9 +272,14 @@ def judged(build: Build) -> list[int] | None:
     overlaps cost the engine. 84 kept copies of one block at one pose took a
     settle of 1.8-3.8 s, and ``--time-limit 2`` ran to 5.9 s; held, 0.01 s.
     """
-    held = {k for k in build.kept
-            if build.collide.query(build.block, build.poses[k], exclude=(k,), first=True)}
+    held = {k for k in build.kept if kept_inside(build, k)}
     return [k for k in build.order if k not in held] if held else None
+
+
+def kept_inside(build: Build, key: int) -> bool:
+    """Whether block ``key`` is a kept one inside another: held where it is by every settle."""
+    return key in build.kept and bool(
+        build.collide.query(build.block, build.poses[key], exclude=(key,), first=True))
 
 
 def settled_layout(problem: Problem, build: Build, result: SettleResult, rng: np.random.Generator
