@@ -1117,6 +1117,44 @@ def test_short_limit_on_a_long_scene_is_honoured_and_places_blocks(tmp_path, mon
     assert r.summary().startswith(f"{scene.required_blocks} required, {r.blocks} fit: porosity ")
 
 
+LOW_LONG = """name = "low-long"
+block = "shake-4t"
+[design]
+crest_width_m = 6.0
+height_m = 2.0
+slope_rise_run = [1.0, 2.0]
+length_m = 30.0
+"""
+
+
+def test_a_short_limit_keeps_room_for_the_settle_before_the_coverage(tmp_path, monkeypatch):
+    """A 153-block mound under a 5 s limit: the final checks, the settles and the coverage ask
+    more than the half of it a run keeps from its search. The capped reserve went to the checks
+    and the coverage, the search ran to the moment the settle had to end, and the layout was
+    written unsettled and unmeasured at 2.5 s (its settle took 0.2 s). Now the settle keeps its
+    part before the coverage, and the coverage is measured up to the limit where its own
+    estimate does not fit. On a clock that advances with the work (tests/clock.py)."""
+    from optimizer.api import RESERVE_SHARE, check_reserve, coverage_reserve, kept_reserves, settle_reserve
+
+    (tmp_path / "low.toml").write_text(LOW_LONG)
+    scene = load_scene(tmp_path / "low.toml")
+    n, limit = scene.required_blocks, 5.0
+    assert check_reserve(scene, n) + coverage_reserve(scene) >= RESERVE_SHARE * limit  # the case
+    checks, settles, measure = kept_reserves(scene, limit, n)
+    assert checks == check_reserve(scene, n) and 0 < settles < settle_reserve(scene, n)
+    assert measure == 0.0 and checks + settles + measure == pytest.approx(RESERVE_SHARE * limit)
+    # A limit that holds them all keeps each whole.
+    assert kept_reserves(scene, 120.0, n) == (check_reserve(scene, n), settle_reserve(scene, n),
+                                              coverage_reserve(scene))
+    # Drops cheap enough that the search lays over a hundred blocks by its deadline: the settle's
+    # estimate (1.3 s for 133 blocks) then needs the room it was once not left.
+    clock = WorkClock(per_drop=0.0005, per_settle=0.05).install(monkeypatch)
+    r = optimize(scene, seed=1, time_limit=limit, clock=clock)
+    assert r.blocks > 100 and r.seconds <= limit + 2.0
+    assert r.settle.get("skipped") is None and r.stable is not None, r.summary()
+    assert r.coverage is not None, r.summary()
+
+
 def test_cli_optimize_writes_the_contract_keys(tmp_path):
     out = tmp_path / "ref.json"
     r = shoha("optimize", TINY, "--out", str(out), "--seed", "1", "--time-limit", "10",
