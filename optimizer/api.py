@@ -549,8 +549,7 @@ def optimize(
     # The search ends early enough for the confirming settle and the final checks, of the kept
     # blocks too (5000 kept ones, far apart, took 31 s of a 10 s limit when only the count was).
     n = max(scene.required_blocks, len(keep))
-    checks, settles, measure = kept_reserves(scene, time_limit, n, settle_layout)
-    reserve = checks + settles + measure
+    reserve = sum(kept_reserves(scene, time_limit, n, settle_layout))
     problem = Problem(
         scene=scene,
         required=scene.required_blocks,
@@ -577,8 +576,9 @@ def optimize(
 
     def end_for(blocks: int) -> float:
         """When the confirming settles must end, for a layout of ``blocks``: what its final
-        checks and coverage leave of the limit."""
-        return start + time_limit - min(check_reserve(scene, blocks), checks) - measure
+        checks and coverage leave of the limit (:func:`kept_reserves` of so many blocks)."""
+        kept_checks, _, kept_measure = kept_reserves(scene, time_limit, blocks, settle_layout)
+        return start + time_limit - kept_checks - kept_measure
 
     end = end_for(n)
     tried: list[_Attempt] = []
@@ -630,11 +630,12 @@ def optimize(
     fits = left >= check_reserve(scene, len(layout.blocks)) + coverage_reserve(scene)
     report_ = check_layout(scene, layout.placed(), with_coverage=False)
     report_.coverage = known
-    if known is None and clock() < start + time_limit:
+    if known is None and clock() + coverage_reserve(scene) / RESERVE_MARGIN <= start + time_limit:
         # Where its estimate fits, the measure may run a second past the limit: the estimate
         # holds for blocks like the built-in ones, and long slender blocks take far longer.
-        # Where it does not, it is tried up to the limit: the estimate has a loaded machine's
-        # margin, and a 150-block layout whose estimate was 1.8 s was measured in 0.3 s.
+        # Where only the estimate without its margin fits, it is tried up to the limit: the
+        # margin is for a loaded machine, and a 150-block layout whose reserve was 1.8 s was
+        # measured in 0.3 s. (Not with less: its sampling is not stopped until it measures.)
         report_.coverage = problem.coverage(layout.placed(),
                                             until=start + time_limit + (1.0 if fits else 0.0))
     return OptimizeResult(

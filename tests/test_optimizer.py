@@ -1146,8 +1146,8 @@ def test_a_short_limit_keeps_room_for_the_settle_before_the_coverage(tmp_path, m
     # A limit that holds them all keeps each whole.
     assert kept_reserves(scene, 120.0, n) == (check_reserve(scene, n), settle_reserve(scene, n),
                                               coverage_reserve(scene))
-    # Drops cheap enough that the search lays over a hundred blocks by its deadline: the settle's
-    # estimate (1.3 s for 133 blocks) then needs the room it was once not left.
+    # Drops cheap enough that the search lays over a hundred blocks by its deadline: a verdict on
+    # them (two settles) is then estimated at over 2 s, the room it was once not left.
     clock = WorkClock(per_drop=0.0005, per_settle=0.05).install(monkeypatch)
     r = optimize(scene, seed=1, time_limit=limit, clock=clock)
     assert r.blocks > 100 and r.seconds <= limit + 2.0
