@@ -1185,7 +1185,40 @@ def test_cli_optimize_bad_input(tmp_path):
     assert r.returncode == 2 and "magic" in r.stderr
     r = shoha("optimize", "mini", "--out", str(tmp_path / "x.json"), "--time-limit", "nan")
     assert r.returncode == 2
+    for listed, said in (("beam,toe", "comes first"), ("toe", "besides toe")):
+        r = shoha("optimize", "mini", "--out", str(tmp_path / "x.json"), "--strategy", listed)
+        assert r.returncode == 2 and said in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x.json").exists()
+
+
+def test_toe_first_lays_the_rows_in_the_first_attempt_and_not_again(tmp_path):
+    """``--strategy toe,...``: the rows along the toes come first in the first attempt, the
+    beam lays the pattern around them, and no attempt lays rows a second time (a mound with time
+    for one attempt only never made the attempt with rows, and its toes stayed bare)."""
+    from optimizer.api import rows_first
+    from optimizer.search.toe import ToeRows
+
+    listed = rows_first([BeamSearch(restarts=1, origins=3), Annealing(iterations=20)])
+    assert isinstance(listed[0], ToeRows) and sum(isinstance(s, ToeRows) for s in listed) == 1
+    assert rows_first(listed)[1:] and sum(isinstance(s, ToeRows) for s in rows_first(listed)) == 1
+    # The attempt with rows that follows a layout left bare is not made: the rows were laid.
+    from optimizer.api import _Attempt, covered_attempt, streams
+
+    tiny = load_scene(TINY)
+    tried = [_Attempt(Build(tiny), [], {}, {}, True)]
+    chosen, words = covered_attempt(problem(tiny), listed, tried, 0, streams(1), True, end=1e9)
+    assert chosen == 0 and len(tried) == 1 and "laid first" in words
+    out = tmp_path / "rows.json"
+    r = shoha("optimize", TINY, "--out", str(out), "--seed", "1", "--time-limit", "20",
+              "--strategy", "toe,beam,anneal", "--json")
+    assert r.returncode == 0, r.stderr
+    phases = json.loads(r.stdout)["phases"]
+    first = [p["strategy"] for p in phases
+             if p.get("attempt") == 1 and p["strategy"] not in ("tune", "spread")]
+    assert first[:2] == ["toe", "beam"] and next(p for p in phases if p["strategy"] == "toe")["placed"] > 0
+    # Each attempt made (an attempt short of its count starts over) lays its rows once, first.
+    attempts = {p["attempt"] for p in phases if p["strategy"] == "beam"}
+    assert [p["attempt"] for p in phases if p["strategy"] == "toe"] == sorted(attempts)
 
 
 @pytest.mark.slow

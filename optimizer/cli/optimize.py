@@ -28,6 +28,7 @@ CUT_SHARE = 0.75
 
 
 def _strategies(names: str) -> list:
+    from optimizer.api import rows_first
     from optimizer.search.anneal import Annealing
     from optimizer.search.beam import BeamSearch
     from optimizer.search.cpsat import CpSat
@@ -35,19 +36,25 @@ def _strategies(names: str) -> list:
     from optimizer.search.physics import raised_check, stands
 
     table = {
+        "toe": None,  # rows along the toes first: the others then run around them (rows_first)
         "beam": lambda: BeamSearch(accept=raised_check, judge=stands),
         "fill": lambda: PocketFill(accept=raised_check),
         "anneal": lambda: Annealing(accept=raised_check),
         "cpsat": lambda: CpSat(),
     }
+    listed = [n.strip() for n in names.split(",") if n.strip()]
     out = []
-    for name in [n.strip() for n in names.split(",") if n.strip()]:
+    for i, name in enumerate(listed):
         if name not in table:
             raise InputError(f"--strategy {name!r}: use a comma-separated list of {', '.join(table)}")
+        if name == "toe":
+            if i != 0:
+                raise InputError("--strategy: toe lays its rows before any other block, so it comes first")
+            continue
         out.append(table[name]())
     if not out:
-        raise InputError("--strategy: name at least one strategy")
-    return out
+        raise InputError("--strategy: name at least one strategy" + (" besides toe" if listed else ""))
+    return rows_first(out) if listed[0] == "toe" else out
 
 
 @click.command("optimize")
@@ -60,7 +67,8 @@ def _strategies(names: str) -> list:
                    "written. Default: 0.5 s a required block, at least 120 s and at most 1200 s "
                    "(mini: 120 s; full, 1005 blocks: 502.5 s).")
 @click.option("--strategy", "strategy_names", default="beam,fill,anneal", show_default=True,
-              help="Strategies, run in order: beam, fill, anneal, cpsat.")
+              help="Strategies, run in order: beam, fill, anneal, cpsat; toe first lays rows along "
+                   "the toes before them (for a big mound whose time holds one attempt only).")
 @click.option("--bound", is_flag=True,
               help="Add the CP-SAT bound on the ground layer after the strategies (its gap in --json; "
                    "about a quarter of a default run on mini).")
