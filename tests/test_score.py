@@ -413,3 +413,26 @@ def test_score_stays_in_range_and_one_more_fault_never_helps(phi, ref_phi, block
     more = dataclasses.replace(m, blocks=blocks + 1)
     assert combined(progress_percent(blocks + 1, required), quality_percent(total)) >= value
     assert sum(p.points for p in penalties(more)) == total
+
+
+@pytest.mark.parametrize("sunk_mm, out", [(3.0, False), (8.0, True)])
+def test_score_judges_tolerance_in_the_zone_check_does(scene, ref_layout, reference, sunk_mm, out):
+    """A block on the foundation sunk into it: within the 5 mm the zone reaches below the
+    foundation it is contact, past it out of tolerance, to ``score`` as to ``shoha check``.
+    (The scoring zone once reached 15 mm below, and a block sunk 8 mm was out to one and not
+    to the other.)"""
+    from geometry.checks import check_layout
+
+    def lowest(p) -> float:
+        return float(p.pose.apply(get_block(p.type).vertices)[:, 2].min())
+
+    on_ground = min(ref_layout.blocks, key=lowest)
+    assert abs(lowest(on_ground)) < 1e-3  # resting on the flat foundation
+    shift = np.array([0.0, 0.0, -lowest(on_ground) - sunk_mm / 1000.0])
+    moved = [dataclasses.replace(p, pose=dataclasses.replace(p.pose, position=p.pose.position + shift))
+             if p.id == on_ground.id else p for p in ref_layout.blocks]
+    layout = dataclasses.replace(ref_layout, blocks=moved)
+    checked = {k for k, _ in check_layout(scene, layout.placed()).out_of_tolerance}
+    scored = {o["id"] for o in score(scene, layout.placed(), reference).to_dict()["out_of_tolerance"]}
+    assert scored == checked
+    assert (on_ground.id in scored) is out
