@@ -35,7 +35,6 @@ from optimizer.score.scoring import (
     progress_percent,
     quality_percent,
     score,
-    scoring_zone,
     zone_prisms,
 )
 from tests.perturb import (
@@ -145,7 +144,7 @@ def test_lifted_out_of_tolerance(scene, ref_layout, reference, base):
 
     # The fault: that block, and only it, out of tolerance, by its exact outside volume.
     assert [o["id"] for o in got["out_of_tolerance"]] == [key]
-    outside = block.volume - volume_inside(block, new, scoring_zone(scene).polytope)
+    outside = block.volume - volume_inside(block, new, scene.tolerance.polytope)
     np.testing.assert_allclose(got["out_of_tolerance"][0]["outside_volume_m3"], outside, rtol=1e-9)
     assert outside > tol.volume
     # Its consequences: less block inside the design prism, and its contacts.

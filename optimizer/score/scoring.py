@@ -180,19 +180,6 @@ class Zone:
                 "filled_m3": self.filled_m3, "porosity_percent": self.porosity_percent}
 
 
-def scoring_zone(scene: Scene) -> TrapezoidalPrism:
-    """The tolerance zone a score judges blocks against: the scene's own, as ``shoha check``'s.
-
-    It reaches ``tol.contact_depth`` (5 mm) below the foundation's lowest point, its slopes
-    carried down (:func:`geometry.tolerance.tolerance_prism`). A block resting on the
-    foundation in a physics engine sinks into it by a fraction of a millimetre (MuJoCo) to a
-    few (PhysX); that is contact, not a block out of place. (Until stop 76 this lowered that
-    zone by 5 mm twice more, to 15 mm below the foundation: a block sunk 8 mm was out of
-    tolerance to ``check`` and not to ``score``.)
-    """
-    return scene.tolerance
-
-
 def zone_prisms(scene: Scene, slices: int = DEFAULT_SLICES, layers: int = DEFAULT_LAYERS
                 ) -> list[tuple[int, int, TrapezoidalPrism]]:
     """The design prism cut into ``slices`` along y and ``layers`` of equal height.
@@ -302,7 +289,7 @@ class Reference:
             porosity_percent=porosity(scene, placed, "exact").percent,
             flagged=interlock(placed, scene.foundation, rule).flagged,
             zones=porosity_map(scene, placed, slices, layers),
-            out_of_tolerance=len(out_of_tolerance(placed, scoring_zone(scene))),
+            out_of_tolerance=len(out_of_tolerance(placed, scene.tolerance)),
             collisions=len(collisions(placed)),
             slices=slices,
             layers=layers,
@@ -798,7 +785,10 @@ def score(
     with ThreadPoolExecutor(1, thread_name_prefix="shoha-settle") as pool:
         settling = pool.submit(settle, scene, placed, seconds=seconds, seed=seed)
         own_porosity = porosity(scene, placed, "exact").percent
-        outside = out_of_tolerance(placed, scoring_zone(scene))
+        # The scene's own zone, as ``shoha check`` judges it (5 mm below the foundation: a block
+        # an engine sinks into it is in contact). Until stop 76 a zone of its own reached 15 mm
+        # below, and a block sunk 8 mm was out to ``check`` and not to ``score``.
+        outside = out_of_tolerance(placed, scene.tolerance)
         pairs = collisions(placed)
         held = interlock(placed, scene.foundation, rule)
         own_cover = coverage(scene, placed)
