@@ -229,20 +229,22 @@ class CollisionWorld:
                     break
         return hits
 
-    def contacts(self, key: int, others: Sequence[int], first: Sequence[bool]) -> dict[int, float]:
-        """Which of ``others`` block ``key`` touches, and how deep each such pair interpenetrates.
+    def contacts(self, block: Block, pose: Pose, others: Sequence[int], first: Sequence[bool]) -> dict[int, float]:
+        """Which of ``others`` ``block`` at ``pose`` touches, and how deep each such pair interpenetrates.
 
-        One narrow phase for both answers: FCL is asked of each pair of pieces
-        whose boxes overlap, ``key``'s piece first where ``first[n]`` and
-        ``others[n]``'s first elsewhere, as :meth:`pairs` asks a pair with its
-        earlier block first. The piece boxes of all of ``others`` with as
-        many pieces as ``key`` are tested in one vectorised pass.
+        The block need not be in the world (a block about to be laid is asked
+        before anything changes). One narrow phase for both answers: FCL is
+        asked of each pair of pieces whose boxes overlap, the block's piece
+        first where ``first[n]`` and ``others[n]``'s first elsewhere, as
+        :meth:`pairs` asks a pair with its earlier block first. The piece
+        boxes of all of ``others`` with as many pieces as the block are
+        tested in one vectorised pass.
 
         Returns
         -------
         dict of other key -> deepest penetration over their piece pairs (metres), for the touching ones.
         """
-        e = self._entries[key]
+        e = _Entry(block, pose, (0, 0, 0))
         near = [(other, self._entries[other], ours) for other, ours in zip(others, first, strict=True)
                 if _boxes_meet(e.box, self._entries[other].box)]
         # The piece-box overlaps of every neighbour with as many pieces as this block, in one pass.

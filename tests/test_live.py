@@ -67,3 +67,29 @@ def test_moves_and_removals_keep_the_checks_of_the_whole_layout(pile, seed):
             _assert_as_whole(live, scene)
     _assert_as_whole(live, scene)
     assert collided  # the pushes did make the interpenetrating pairs whose depths are compared
+
+
+def test_a_block_heaped_into_others_is_refused_and_changes_nothing(pile):
+    """Blocks a centimetre apart overlap each other nearly whole: the third one laid there
+    overlaps the first two by nearly twice its volume, is refused (422), and leaves every check
+    as it was; so does a laid block moved into the heap. Two copies are still taken in: their
+    overlap is at most one block's volume, as a block sunk into its neighbours has."""
+    from optimizer.serve.bodies import BodyError
+
+    scene, placed = pile
+    live = LiveLayout(scene)
+    for key, block, pose in placed:
+        live.put(key, block.name, block, pose)
+    key, block, pose = placed[-1]
+    heap = [Pose(pose.position + [0.0, 0.01 * n, 0.0], pose.quaternion) for n in (1, 2)]
+    live.put(1001, block.name, block, heap[0])
+    before = (live.porosity_percent, live.collisions(), live.out_of_tolerance(), [p.id for p in live])
+    with pytest.raises(BodyError) as refused:
+        live.put(1002, block.name, block, heap[1])
+    assert refused.value.status == 422 and "one inside another" in str(refused.value)
+    with pytest.raises(BodyError):
+        live.put(placed[0][0], block.name, block, heap[1])  # a laid block moved into the heap
+    assert (live.porosity_percent, live.collisions(), live.out_of_tolerance(), [p.id for p in live]) == before
+    assert live.get(placed[0][0]).pose is placed[0][2]
+    live.remove(1001)
+    _assert_as_whole(live, scene)

@@ -45,7 +45,7 @@ import manifold3d as m3
 import numpy as np
 
 from geometry.blocks import Block
-from geometry.checks import crowding
+from geometry.checks import crowding, overlapping
 from geometry.clip import solid_volume_inside, volume_below, volume_inside
 from geometry.collision import CollisionWorld
 from geometry.constants import tol
@@ -184,32 +184,41 @@ class LiveLayout:
         """Lay block ``key`` at ``pose``, or move it there if it is laid already.
 
         A BodyError (422), with nothing changed, where more blocks would reach it than could
-        without overlapping (:func:`geometry.checks.crowding`): each block is
-        intersected with every block it touches, and 4999 copies of one pose held the
-        service for minutes.
+        without overlapping (:func:`geometry.checks.crowding`), or where it overlaps the blocks
+        it touches by more than its own volume (:func:`geometry.checks.overlapping`): each
+        block's intersections with the blocks it touches are unioned, and that union of
+        blocks heaped in one place held the service for seconds a block (4999 copies of one
+        pose, for minutes).
         """
-        near = len(self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,)))
-        if (wrong := crowding(block, key, near)) is not None:
+        others = self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,))
+        if (wrong := crowding(block, key, len(others))) is not None:
             raise BodyError(422, wrong)
+        seq = self._seq.get(key, self._next_seq)
+        found = self._contacts(block, pose, seq, others)
+        solid = block.posed_solid(pose)
+        cut = {other: solid ^ self._solids[other] for other in found}
+        parts = {other: None if part.is_empty() else part for other, part in cut.items()}
+        overlap = sum(part.volume() for part in parts.values() if part is not None)
+        if (wrong := overlapping(block, key, overlap)) is not None:
+            raise BodyError(422, wrong)
+        # Checked: from here on the block is laid.
         if key in self._blocks:
             self._take_out(key, keep_slot=True)
         else:
-            self._seq[key] = self._next_seq
+            self._seq[key] = seq
             self._next_seq += 1
-        solid = block.posed_solid(pose)
         inside = volume_inside(block, pose, self._prism)
         outside = outside_volume(block, pose, self._zone)
         above = self._above_crest(block, pose)
         self._world.add(key, block, pose)
-        touching = self._contacts(key, block, pose)
-        parts = []
-        for other in touching:
-            part = solid ^ self._solids[other]
-            self._parts[_pair(key, other)] = part = None if part.is_empty() else part
-            if part is not None:
-                parts.append(part)
+        for other, depth in found.items():
+            if depth > tol.contact_depth:
+                self._collisions[_pair(key, other)] = depth
+        for other, part in parts.items():
+            self._parts[_pair(key, other)] = part
+        touching = set(found)
         # A block wholly inside the convex prism has every part of it inside.
-        shared = self._inside(parts, trim=inside < block.volume)
+        shared = self._inside([p for p in parts.values() if p is not None], trim=inside < block.volume)
         self._filled += inside - shared
         for other in touching:
             self._shared_now.pop(other, None)
@@ -274,8 +283,9 @@ class LiveLayout:
             return 0.0
         return max(0.0, block.volume - volume_below(block, pose, _UP, self._crest))
 
-    def _contacts(self, key: int, block: Block, pose: Pose) -> set[int]:
-        """The blocks that block ``key`` (just added to the world) touches; records its collisions.
+    def _contacts(self, block: Block, pose: Pose, seq: int, others: list[int]) -> dict[int, float]:
+        """The blocks of ``others`` that ``block`` at ``pose``, ``seq``-th in the installation
+        order, touches: ``{id: depth m}``.
 
         Touches and collisions are found as ``shoha check`` and the exact
         porosity find them. FCL's answer for a pair depends on which block is
@@ -283,10 +293,4 @@ class LiveLayout:
         each pair with its earlier block first; so does this, once per pair,
         in one narrow phase that finds both the touch and the depth.
         """
-        others = self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,))
-        seq = self._seq[key]
-        found = self._world.contacts(key, others, [self._seq[other] > seq for other in others])
-        for other, depth in found.items():
-            if depth > tol.contact_depth:
-                self._collisions[_pair(key, other)] = depth
-        return set(found)
+        return self._world.contacts(block, pose, others, [self._seq[other] > seq for other in others])
