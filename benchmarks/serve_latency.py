@@ -31,6 +31,13 @@ Cases and targets (issue 25):
 ``size-N``
     moves in sessions of N blocks of ``full`` (75 to 1000), for the chart of
     latency against session size beside the paper's Table VI.
+``heap``
+    ``HEAP`` blocks thrown at one place on ``mini`` (centroids scattered 0.5 m
+    about it, tilted at random), then as many moves of the laid ones to other
+    such poses: most are one inside another, and each is laid or refused
+    (422, ``geometry.checks.overlapping``). No target; its largest time is the
+    one to read (stop 76: 3.3 s a block at 45 in one place, every session
+    waiting meanwhile). ``blocks`` is how many were laid.
 
 Run::
 
@@ -72,6 +79,8 @@ SIZES = (75, 250, 500, 1000)
 TARGETS = {"mini-75": (2.0, 10.0), "mini-75-httpx": (2.0, 10.0), "full-1000": (None, 30.0),
            "event": (None, 15.0)}
 SCORE_TARGET_S = 2.0
+#: Blocks thrown at one place in the ``heap`` case.
+HEAP = 200
 #: The timed connection is opened afresh after this long unused (uvicorn's keep-alive lasts 5 s).
 IDLE_RECONNECT_S = 2.0
 
@@ -276,6 +285,25 @@ def main() -> int:
         row("event", 75, events)
         if len(events) < len(sent):
             print(f"event: {len(sent) - len(events)} of {len(sent)} events never arrived")
+        client.http.delete(f"/sessions/{sid}")
+
+        # heap: blocks thrown at one place, most one inside another; each laid or refused.
+        sid = client.session("mini")
+        rng = np.random.default_rng(2)
+        block, centre = mini[0][1], mini[0][2].position
+        heaped, laid = [], set()
+        for i in range(2 * HEAP):
+            key = i if i < HEAP else int(rng.choice(sorted(laid))) if laid else i
+            turn = np.r_[1.0, rng.normal(0.0, 0.5, 3)]
+            pose = Pose(centre + rng.normal(0.0, 0.5, 3), turn / np.linalg.norm(turn))
+            t = time.perf_counter()
+            r = client.http.put(f"/sessions/{sid}/blocks/{key}", json=unity_body(block, pose))
+            heaped.append(time.perf_counter() - t)
+            if r.status_code == 200:
+                laid.add(key)
+            elif r.status_code != 422:
+                r.raise_for_status()
+        row("heap", len(laid), heaped)
         client.http.delete(f"/sessions/{sid}")
 
         # sizes: sessions of N blocks of full, each laid at once, then moved.

@@ -229,7 +229,8 @@ class CollisionWorld:
                     break
         return hits
 
-    def contacts(self, block: Block, pose: Pose, others: Sequence[int], first: Sequence[bool]) -> dict[int, float]:
+    def contacts(self, block: Block, pose: Pose, others: Sequence[int],
+                 first: Sequence[bool]) -> dict[int, float]:
         """Which of ``others`` ``block`` at ``pose`` touches, and how deep each such pair interpenetrates.
 
         The block need not be in the world (a block about to be laid is asked
