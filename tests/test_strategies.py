@@ -166,8 +166,8 @@ def test_on_rubble_a_ground_block_is_kept_as_lowered_and_one_on_blocks_is_let_go
     build = Build(scene)
     shape = Shape.of(scene.block, hanging_of(scene.block, families(scene.block)[0], 0.3))
     runs = []
-    let_go = physics._let_go
-    monkeypatch.setattr(physics, "_let_go", lambda *a: runs.append(a) or let_go(*a))
+    let_go = physics.let_go
+    monkeypatch.setattr(physics, "let_go", lambda *a: runs.append(a) or let_go(*a))
     ground = build.lower(shape, 0.0, 6.0)
     assert ground is not None and ground.support == (GROUND,)
     assert raised_check(pr, build, ground) is ground and not runs

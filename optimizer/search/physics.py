@@ -30,6 +30,7 @@ from geometry.collision import collisions
 from geometry.constants import tol
 from geometry.polytope import ConvexPolytope
 from geometry.pose import Pose
+from geometry.scene import Scene
 from settle import SettleResult, Stopped, Thresholds, settle
 
 from .beam import BeamSearch
@@ -91,7 +92,7 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
     block = build.block
     near = build.collide.neighbours(candidate.pose.position, 2.5 * block.bounding_radius)
     placed = [(k, block, build.poses[k]) for k in near] + [(key, block, candidate.pose)]
-    result = _let_go(problem, placed, key)
+    result = let_go(problem.scene, placed, key)
     if result is None:
         return None
     if result.stable:
@@ -113,10 +114,11 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
                      volume_inside(block, pose, problem.scene.design.polytope))
 
 
-def _let_go(problem: Problem, placed: list, key: int) -> SettleResult | None:
-    """The short settle of block ``key`` let go among fixed ``placed``; None where the engine
-    diverged (the candidate is refused, as one that does not come to rest is)."""
-    result = settle(problem.scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
+def let_go(scene: Scene, placed: list, key: int) -> SettleResult | None:
+    """The short settle of block ``key`` let go among fixed ``placed`` (judged by
+    :data:`LOCAL_THRESHOLDS`); None where the engine diverged (the candidate is refused, as one
+    that does not come to rest is). The live service's hints are let go the same way."""
+    result = settle(scene, placed, seconds=LOCAL_SECONDS, seed=0, movable={key},
                     thresholds=LOCAL_THRESHOLDS)
     return None if result.diverged else result
 

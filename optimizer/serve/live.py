@@ -142,6 +142,12 @@ class LiveLayout:
     def get(self, key: int) -> Placed | None:
         return self._blocks.get(key)
 
+    def near(self, centre: np.ndarray, radius: float) -> list[tuple[int, Block, Pose]]:
+        """``(id, Block, Pose)`` of the blocks whose bounding spheres reach within ``radius`` of
+        ``centre``."""
+        blocks = self._blocks
+        return [(k, blocks[k].block, blocks[k].pose) for k in self._world.neighbours(centre, radius)]
+
     def placed(self) -> list[tuple[int, Block, Pose]]:
         """``(id, Block, Pose)`` of every block, in installation order."""
         return [(p.id, p.block, p.pose) for p in self._blocks.values()]
