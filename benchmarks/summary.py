@@ -496,7 +496,7 @@ def values() -> dict[str, Any]:
         ) + f"\n\n1-minute load average at the start: {load} (2 cores)."
         by_case = {r["case"]: r for r in sl}
         for case, key in (("mini-75", "serve_mini"), ("mini-75-httpx", "serve_mini_httpx"),
-                          ("full-1000", "serve_full"), ("event", "serve_event")):
+                          ("full-1000", "serve_full"), ("event", "serve_event"), ("heap", "serve_heap")):
             if case in by_case:
                 v[key] = by_case[case]
         if "score" in by_case:
@@ -736,6 +736,12 @@ def readme_rows(v: dict[str, Any]) -> list[str]:
         worst = float(v["serve_score"]["max_ms"]) / 1e3
         out.append(f"| `POST /score` on 75 blocks, settle included (slowest of {v['serve_score']['n']}) | "
                    f"{worst:.2f} s | 2 s | {meets(worst, 2.0)} | `serve_latency.csv` |")
+    if "serve_heap" in v:
+        r = v["serve_heap"]
+        out.append(f"| `shoha serve`, {int(r['n']) // 2} blocks thrown at one spot of `mini` and as many moves "
+                   f"among them, most one inside another, each laid or refused ({r['blocks']} laid) | "
+                   f"p99 {float(r['p99_ms']):.1f} ms, "
+                   f"largest {float(r['max_ms']):.1f} ms | | | `serve_latency.csv` |")
     row("`make bench`, every script", "bench_minutes", "min", "run_all.csv", "{:.1f}")
     return out
 
