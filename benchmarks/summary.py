@@ -738,8 +738,8 @@ def readme_rows(v: dict[str, Any]) -> list[str]:
                    f"{worst:.2f} s | 2 s | {meets(worst, 2.0)} | `serve_latency.csv` |")
     if "serve_heap" in v:
         r = v["serve_heap"]
-        out.append(f"| `shoha serve`, {int(r['n']) // 2} blocks thrown at one spot of `mini` and as many moves "
-                   f"among them, most one inside another, each laid or refused ({r['blocks']} laid) | "
+        out.append(f"| `shoha serve`, {int(r['n']) // 2} blocks thrown at one spot of `mini` and as many "
+                   f"moves among them, most one inside another, each laid or refused ({r['blocks']} laid) | "
                    f"p99 {float(r['p99_ms']):.1f} ms, "
                    f"largest {float(r['max_ms']):.1f} ms | | | `serve_latency.csv` |")
     row("`make bench`, every script", "bench_minutes", "min", "run_all.csv", "{:.1f}")

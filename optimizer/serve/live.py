@@ -127,6 +127,11 @@ class LiveLayout:
         self._parts: dict[tuple[int, int], m3.Manifold | None] = {}
         #: V(k ∩ union of the blocks k touches) inside the prism, while none of them has changed.
         self._shared_now: dict[int, float] = {}
+        #: Each touching pair's intersection volume (0 where it is empty), m^3.
+        self._part_m3: dict[tuple[int, int], float] = {}
+        #: Each block's intersection volumes with the blocks it touches, summed, m^3
+        #: (:func:`geometry.checks.overlapping` keeps it within the block's own volume).
+        self._overlap: dict[int, float] = {}
 
     # --- reading --------------------------------------------------------------
 
@@ -190,11 +195,13 @@ class LiveLayout:
         """Lay block ``key`` at ``pose``, or move it there if it is laid already.
 
         A BodyError (422), with nothing changed, where more blocks would reach it than could
-        without overlapping (:func:`geometry.checks.crowding`), or where it overlaps the blocks
-        it touches by more than its own volume (:func:`geometry.checks.overlapping`): each
-        block's intersections with the blocks it touches are unioned, and that union of
-        blocks heaped in one place held the service for seconds a block (4999 copies of one
-        pose, for minutes).
+        without overlapping (:func:`geometry.checks.crowding`), or where it, or a block it
+        touches, would overlap the blocks it touches by more than its own volume
+        (:func:`geometry.checks.overlapping`): each block's intersections with the blocks it
+        touches are unioned, and that union of blocks heaped in one place held the service
+        for seconds a block (4999 copies of one pose, for minutes). Every block laid is so
+        kept within the rule, whatever the order: a layout the service holds is taken in
+        again as a whole save, in any order.
         """
         others = self._world.neighbours(pose.position, block.bounding_radius, exclude=(key,))
         if (wrong := crowding(block, key, len(others))) is not None:
@@ -204,9 +211,13 @@ class LiveLayout:
         solid = block.posed_solid(pose)
         cut = {other: solid ^ self._solids[other] for other in found}
         parts = {other: None if part.is_empty() else part for other, part in cut.items()}
-        overlap = sum(part.volume() for part in parts.values() if part is not None)
-        if (wrong := overlapping(block, key, overlap)) is not None:
+        volumes = {other: 0.0 if part is None else float(part.volume()) for other, part in parts.items()}
+        if (wrong := overlapping(block, key, sum(volumes.values()))) is not None:
             raise BodyError(422, wrong)
+        for other, v in volumes.items():
+            theirs = self._overlap[other] - self._part_m3.get(_pair(key, other), 0.0) + v
+            if (wrong := overlapping(self._blocks[other].block, other, theirs)) is not None:
+                raise BodyError(422, f"with block {key} laid there, {wrong}")
         # Checked: from here on the block is laid.
         if key in self._blocks:
             self._take_out(key, keep_slot=True)
@@ -222,6 +233,9 @@ class LiveLayout:
                 self._collisions[_pair(key, other)] = depth
         for other, part in parts.items():
             self._parts[_pair(key, other)] = part
+            self._part_m3[_pair(key, other)] = volumes[other]
+            self._overlap[other] += volumes[other]
+        self._overlap[key] = sum(volumes.values())
         touching = set(found)
         # A block wholly inside the convex prism has every part of it inside.
         shared = self._inside([p for p in parts.values() if p is not None], trim=inside < block.volume)
@@ -246,6 +260,8 @@ class LiveLayout:
         for other in touching:
             self._touching[other].discard(key)
             self._collisions.pop(_pair(key, other), None)
+            self._overlap[other] -= self._part_m3.pop(_pair(key, other))
+        del self._overlap[key]
         parts = [self._parts.pop(_pair(key, other)) for other in touching]
         shared = self._shared_now.pop(key, None)
         if shared is None:
