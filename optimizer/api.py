@@ -47,6 +47,7 @@ valid layout found is returned with the count it reached.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
@@ -360,7 +361,7 @@ class OptimizeResult:
                 text += f": {self.outside_design_prism_m3:.1f} m³ of the blocks lies {where}"
         if self.kept is not None:
             k = self.kept
-            faults = [f"{len(k[key])} {words}: {', '.join(map(str, k[key]))}"
+            faults = [f"{len(k[key])} {words}: {_ids(k[key])}"
                       for key, words in (("colliding", "collide"), ("out_of_tolerance", "stick out"),
                                          ("unstable", "do not stand")) if k[key]]
             text += (f"\nkept {k['blocks']} blocks where they were"
@@ -581,9 +582,10 @@ def optimize(
         return start + time_limit - kept_checks - kept_measure
 
     end = end_for(n)
+    kept = kept_in_time(scene, keep, start, time_limit, clock) if keep else None
     tried: list[_Attempt] = []
     for attempt in range(1, ATTEMPTS + 1):
-        tried.append(_attempt(problem, strategies_run, scene, keep, stream("attempt", attempt), settle_layout,
+        tried.append(_attempt(problem, strategies_run, scene, kept, stream("attempt", attempt), settle_layout,
                               end, attempt, end_for=end_for))
         if settle_layout:
             problem = calibrated(problem, end)
@@ -659,7 +661,7 @@ def optimize(
         cover_attempt=cover_note,
         searched=best.searched,
         shortfall=shortfall(best.phases, problem.required, len(build), time_limit, bool(keep),
-                            one_layer=single_layer(build)),
+                            one_layer=single_layer(build), beyond=beyond_reach(scene)),
         coverage_left_out=report_.coverage is None,
         outside_budget_m3=outside_budget(scene),
     )
@@ -691,8 +693,50 @@ def single_layer(build: Build) -> tuple[float, float] | None:
     return scene.tolerance.z_top - scene.design.z_bottom, scene.block.height
 
 
+#: How many times the tolerance zone's volume the required blocks' own must exceed for
+#: :func:`beyond_reach` to call the count out of reach: valid blocks overlap only in contacts
+#: at most ``tol.contact_depth`` deep, a sliver of their volume.
+ZONE_OVERFILL = 2.0
+
+
+def beyond_reach(scene: Scene) -> str | None:
+    """Why no layout of ``scene`` can reach its count, where a bound shows it; else None.
+
+    * No block fits in the tolerance zone at all: the block, turned any way, is at least as
+      thick as the ball inside its convex hull is wide, and the zone is less high than that
+      (a 0.3 m mound of 1.66 m Shake Blocks searched its whole limit, and said a longer one
+      might place more: stop 77's probe).
+    * The required blocks' volume is over ``ZONE_OVERFILL`` times the zone's (100 000 blocks of
+      1.7 m³ asked of a 160 m³ zone).
+    """
+    zone = scene.tolerance
+    high = zone.z_top - zone.z_bottom
+    thick = 2.0 * inscribed_radius(scene.block.vertices)
+    if thick > high:
+        return (f"no block fits in the tolerance zone: turned any way, the block is at least {thick:.2f} m "
+                f"thick (the widest ball inside its convex hull), and the zone is {high:.2f} m high")
+    need = scene.required_blocks * scene.block.volume
+    if need > ZONE_OVERFILL * zone.volume:
+        return (f"no layout holds {scene.required_blocks} blocks: they are {need:.4g} m³ of concrete, and "
+                f"the tolerance zone they must lie in is {zone.volume:.4g} m³")
+    return None
+
+
+def inscribed_radius(points: np.ndarray) -> float:
+    """Radius of the largest ball inside the convex hull of ``points`` (its Chebyshev ball, a
+    linear programme over the hull's faces)."""
+    from scipy.optimize import linprog
+    from scipy.spatial import ConvexHull
+
+    eq = ConvexHull(points).equations  # n . x + d <= 0 inside, |n| = 1
+    res = linprog(c=[0.0, 0.0, 0.0, -1.0], A_ub=np.column_stack([eq[:, :3], np.ones(len(eq))]),
+                  b_ub=-eq[:, 3], bounds=[(None, None)] * 3 + [(0.0, None)])
+    return float(res.x[3]) if res.success else 0.0
+
+
 def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_limit: float,
-              kept: bool, one_layer: tuple[float, float] | None = None) -> str | None:
+              kept: bool, one_layer: tuple[float, float] | None = None, beyond: str | None = None
+              ) -> str | None:
     """Why an attempt's search stopped short of the count, from its last pocket fill (its
     ``ended``): no room found, or no time left. Where no fill ran (``--strategy`` without it),
     what the strategies that ran can place. None if it reached the count.
@@ -701,9 +745,14 @@ def shortfall(phases: list[dict[str, Any]], required: int, blocks: int, time_lim
     that no second layer found room under the zone's crest either, with its height and the
     block's: on a mound under two blocks high (``benchmarks/scenes/shake-low-gentle.toml``, a
     2.95 m zone and 1.66 m blocks) the pattern's second layer, nested 0.8 H, stands 4 cm out
-    of the zone, and no block lowered onto the first rests inside it (docs/coverage-study.md)."""
+    of the zone, and no block lowered onto the first rests inside it (docs/coverage-study.md).
+
+    ``beyond`` (:func:`beyond_reach`): why no layout reaches the count; it is said in place of
+    the search's own reason, which then never says a longer limit may place more."""
     if blocks >= required:
         return None
+    if beyond is not None:
+        return beyond
     ended = [p for p in phases if "ended" in p]
     if not ended:
         return _without_fill(phases)
@@ -823,7 +872,7 @@ def taken_out(before: Build, after: Build) -> np.ndarray:
     return at[~np.isfinite(d), :2]
 
 
-def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, keep: Sequence[Placement],
+def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kept: Build | None,
              rng: np.random.Generator, settle_layout: bool, end: float, attempt: int,
              all_or_nothing: bool = False, end_for: Callable[[int], float] | None = None) -> _Attempt:
     """The strategies in order from an empty (or kept) build, then the settle that confirms it.
@@ -840,7 +889,7 @@ def _attempt(problem: Problem, strategies: Sequence[Strategy], scene: Scene, kee
     """
     clock = problem.clock
     start = clock()
-    phase = Phase(kept_build(scene, keep)) if keep else None
+    phase = Phase(kept.copy()) if kept is not None else None
     phases = []
     gap: dict[str, Any] = {}
     for strategy in strategies:
@@ -1030,7 +1079,7 @@ def covered_attempt(problem: Problem, strategies: Sequence[Strategy], tried: lis
     if clock() + needs > problem.deadline:
         return chosen, f"no time was left for an attempt with toe rows first (about {needs:.0f} s)"
     again = rows_first(strategies)
-    tried.append(_attempt(problem, again, scene, (), stream("rows", number), settle_layout, end,
+    tried.append(_attempt(problem, again, scene, None, stream("rows", number), settle_layout, end,
                           len(tried) + 1, all_or_nothing=True))
     new = tried[-1]
     what = "an attempt with toe rows first"
@@ -1407,13 +1456,70 @@ def check_keep(scene: Scene, keep: Sequence[Placement], where: str = "the kept l
     check_not_crowded(scene.block, np.array([p.pose.position for p in keep]).reshape(-1, 3), ids, where)
 
 
-def kept_build(scene: Scene, keep: Sequence[Placement]) -> Build:
+#: Kept blocks taken in between two looks at the clock (:func:`kept_build`).
+KEPT_CHUNK = 200
+#: Of the 2 s a run may overrun its limit, the part the kept blocks' intake and checks may use.
+KEPT_GRACE = 1.0
+
+
+class KeptTooSlow(Exception):
+    """Taking in the kept blocks would end past its time (:func:`kept_build`)."""
+
+    def __init__(self, seconds: float):
+        super().__init__(f"{seconds:.1f} s")
+        self.seconds = seconds
+
+
+def kept_build(scene: Scene, keep: Sequence[Placement], clock: Callable[[], float] | None = None,
+               by: float | None = None) -> Build:
     """A build holding a partial layout's blocks where they are, in its order (checked by
-    :func:`check_keep`)."""
+    :func:`check_keep`).
+
+    With ``by`` (on ``clock``): every ``KEPT_CHUNK`` blocks, where the rest at the pace so far
+    would end past ``by``, :class:`KeptTooSlow` is raised with the seconds the whole would take.
+    Each block costs most of a millisecond (0.68 ms on the 2-core machine), and 15 920 kept
+    blocks under a 5 s limit took 10.9 s before the search began (stop 77's probe).
+    """
     build = Build(scene)
-    for p in keep:
+    t0 = clock() if clock is not None else 0.0
+    for i, p in enumerate(keep):
+        if by is not None and clock is not None and i and i % KEPT_CHUNK == 0:
+            now = clock()
+            rest = (now - t0) / i * (len(keep) - i)
+            if now + rest > by:
+                raise KeptTooSlow(now - t0 + rest)
         build.keep(p.id, p.type, p.pose)
     return build
+
+
+def kept_in_time(scene: Scene, keep: Sequence[Placement], start: float, time_limit: float,
+                 clock: Callable[[], float]) -> Build:
+    """:func:`kept_build` of ``keep``, or an InputError (nothing written) where taking the blocks
+    in and checking the layout would end more than ``KEPT_GRACE`` past the limit: the limit is a
+    promise, and a run cannot leave out its kept blocks or their checks."""
+    # The checks of the kept blocks at least: the search adds blocks only while its time lasts.
+    checks = check_reserve(scene, len(keep)) / RESERVE_MARGIN
+    by = start + time_limit + KEPT_GRACE - checks
+    begun = clock()
+    try:
+        return kept_build(scene, keep, clock, by)
+    except KeptTooSlow as slow:
+        need = math.ceil(begun - start + slow.seconds + checks)
+        raise InputError(f"the kept layout: its {len(keep)} blocks take about {slow.seconds:.0f} s to take "
+                         f"in and {checks:.0f} s to check, more than --time-limit {time_limit:g} allows; "
+                         f"give it at least {need} s") from None
+
+
+#: Ids a summary names before it counts the rest (``--json`` has them all).
+LISTED_IDS = 20
+
+
+def _ids(ids: Sequence[int]) -> str:
+    """``ids`` for a summary: the first ``LISTED_IDS``, and how many more (5970 kept blocks out of
+    tolerance once filled a screen)."""
+    shown = ", ".join(map(str, ids[:LISTED_IDS]))
+    more = len(ids) - LISTED_IDS
+    return shown if more <= 0 else f"{shown} and {more} more (--json lists them)"
 
 
 def kept_report(keep: Sequence[Placement], report: CheckReport, unstable: list[int]) -> dict[str, Any]:

@@ -314,3 +314,36 @@ def test_a_kept_mesh_block_named_from_another_folder_is_the_scenes_block(tmp_pat
     done = read_layout(out_dir / "done.json")
     assert [p.pose.position.tobytes() for p in done.blocks[:2]] == [p.position.tobytes() for p in poses]
     assert {p.type for p in done.blocks} == {"mesh:../scene/shake.stl"}
+
+
+def test_kept_blocks_that_cannot_be_taken_in_within_the_limit_are_refused_at_once(monkeypatch):
+    """Taking in a kept block costs most of a millisecond, and 15 920 kept blocks under a 5 s
+    limit ran to 14 s before (stop 77's probe). On a clock that charges 50 ms a kept block, 900
+    kept blocks of ``full`` are refused under a 5 s limit after the first 200 (an InputError,
+    exit 2, that names the time they need), and taken in under a 60 s one."""
+    from geometry.errors import InputError
+    from optimizer.api import kept_in_time
+    from optimizer.search.build import Build
+    from optimizer.search.patterns import lattice_for
+    from optimizer.search.problem import Problem
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import pattern_pass
+
+    full = load_scene("full")
+    problem = Problem(full, full.required_blocks, full.target_porosity, lattice_for(full.block, "shake-4t"))
+    laid = pattern_pass(problem, ShapeCache(full.block), Build(full), (0.3, 0.7))
+    keep = [Placement(i, "shake-4t", laid.poses[k]) for i, k in enumerate(laid.order[:900])]
+    now = [0.0]
+    taken = Build.keep
+
+    def charged(build, *args):
+        now[0] += 0.05
+        return taken(build, *args)
+
+    monkeypatch.setattr(Build, "keep", charged)
+    slow = r"its 900 blocks take about 45 s to take in .* give it at least 4\d s"
+    with pytest.raises(InputError, match=slow):
+        kept_in_time(full, keep, 0.0, 5.0, lambda: now[0])
+    assert now[0] == pytest.approx(200 * 0.05)  # refused at the first look, not after all 900
+    now[0] = 0.0
+    assert len(kept_in_time(full, keep, 0.0, 60.0, lambda: now[0]).kept) == 900

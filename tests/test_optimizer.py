@@ -698,7 +698,7 @@ def test_an_all_or_nothing_attempt_left_short_is_not_settled(tiny):
     end = short.deadline
 
     def run(all_or_nothing):
-        return _attempt(short, [BeamSearch(restarts=1, origins=3)], tiny, (), np.random.default_rng(1),
+        return _attempt(short, [BeamSearch(restarts=1, origins=3)], tiny, None, np.random.default_rng(1),
                         True, end, 1, all_or_nothing=all_or_nothing)
 
     settled, unsettled = run(False), run(True)
@@ -739,7 +739,7 @@ def test_the_refill_sweeps_first_where_the_confirming_settle_took_blocks_out(tin
     monkeypatch.setattr(api, "confirm", confirm)
     monkeypatch.setattr(PocketFill, "sweeping", sweeping)
     strategies = [BeamSearch(restarts=1, origins=3), PocketFill(accept=raised_check, draws=60, checks=10)]
-    attempt = _attempt(pr, strategies, tiny, (), np.random.default_rng(1), True, pr.deadline, 1)
+    attempt = _attempt(pr, strategies, tiny, None, np.random.default_rng(1), True, pr.deadline, 1)
     assert attempt.searched == pr.required and out, "the search must reach its count for the test to mean it"
     assert asked and asked[0] is not None
     np.testing.assert_allclose(asked[0], [out[0]])
@@ -1638,3 +1638,21 @@ def test_an_attempt_is_on_target_only_where_the_layout_written_is_within_its_win
     assert first.on_target(level)  # its union measured, and kept on it
     assert not replace(first, build=into).on_target(pr)
     assert attempt.written_percent(pr) == pytest.approx(counted + overlap, rel=1e-12)
+
+
+@pytest.mark.parametrize("change, words", [
+    (("height_m = 3.0", "height_m = 0.3"), "no block fits in the tolerance zone: turned any way, the block "
+                                            "is at least 1.25 m thick"),
+    (('target_porosity_percent = 56.0', 'target_porosity_percent = 56.0\nrequired_blocks = 100000'),
+     "no layout holds 100000 blocks"),
+])
+def test_a_count_no_layout_can_reach_is_said_so_not_blamed_on_the_time(tmp_path, change, words):
+    """A mound lower than the block is thick, or a count whose concrete is more than twice the
+    tolerance zone: the run says why no layout reaches the count, never that a longer
+    --time-limit may place more (it did, for both: stop 77's probe)."""
+    text = (ROOT / "tests" / "data" / "tiny.toml").read_text().replace(*change)
+    assert text != (ROOT / "tests" / "data" / "tiny.toml").read_text()
+    (tmp_path / "scene.toml").write_text(text)
+    r = optimize(load_scene(str(tmp_path / "scene.toml")), seed=1, time_limit=3.0)
+    assert r.blocks < r.required_blocks
+    assert words in r.shortfall and "a longer --time-limit" not in r.summary()
