@@ -62,6 +62,22 @@ def reject_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a number JSON allows")
 
 
+class DuplicateKey(ValueError):
+    """A JSON object names one key twice."""
+
+
+def unique_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """``json.loads``' ``object_pairs_hook``: an object that names a key twice is refused.
+    ``json`` keeps the last, so a save with ``"blocks"`` twice silently lost the first list
+    (stop 77's probe)."""
+    out = dict(pairs)
+    if len(out) < len(pairs):
+        seen: set[str] = set()
+        twice = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise DuplicateKey(f"the key {twice[:40]!r} appears twice in one object")
+    return out
+
+
 #: Most digits of an integer read from JSON: more than any float holds (1e308 has 309).
 MAX_INT_DIGITS = 309
 
@@ -124,7 +140,8 @@ def read_json(path: str | os.PathLike) -> Any:
     except OSError as exc:
         raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
     try:
-        return json.loads(text, parse_constant=reject_constant, parse_int=bounded_int)
+        return json.loads(text, parse_constant=reject_constant, parse_int=bounded_int,
+                          object_pairs_hook=unique_keys)
     except json.JSONDecodeError as exc:
         where = f"line {exc.lineno} column {exc.colno}"
         raise InputError(f"{path}: malformed JSON at {where}: {exc.msg}") from None

@@ -283,6 +283,8 @@ def _body(**change: Any) -> bytes:
 BAD = [
     # (what, method, path under the session or absolute, body, headers, status)
     ("malformed JSON", "PUT", "blocks/5", b'{"position": {"x": 1', JSON, 400),
+    ("a key twice in one object", "PUT", "blocks/5",
+     _body()[:-1] + b', "position": {"x": 0, "y": 9, "z": 0}}', JSON, 400),
     ("NaN", "PUT", "blocks/5", b'{"position": {"x": NaN, "y": 0, "z": 0}, "rotation": {"x": 0, "y": 0, '
                                b'"z": 0, "w": 1}}', JSON, 400),
     ("Infinity", "PUT", "blocks/5", _body().replace(b"0.9", b"Infinity"), JSON, 400),

@@ -30,7 +30,7 @@ import numpy as np
 
 from geometry.blocks import Block, get_block, size_key
 from geometry.errors import InputError, finite_number
-from geometry.fileio import ascii_digits, bounded_int, reject_constant
+from geometry.fileio import DuplicateKey, ascii_digits, bounded_int, reject_constant, unique_keys
 from geometry.layout import (
     FORMAT,
     MAX_COORDINATE,
@@ -90,11 +90,13 @@ def parse_json(raw: bytes) -> Any:
         raise BodyError(400, "body is not UTF-8 text") from None
     try:
         value = json.loads(text, parse_constant=reject_constant, parse_float=_finite_float,
-                           parse_int=bounded_int)
+                           parse_int=bounded_int, object_pairs_hook=unique_keys)
     except json.JSONDecodeError as exc:
         raise BodyError(400, f"malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
     except RecursionError:
         raise BodyError(400, "JSON nested too deeply") from None
+    except DuplicateKey as exc:
+        raise BodyError(400, str(exc)) from None
     except ValueError as exc:
         raise BodyError(400, f"bad JSON number: {exc}") from None
     return value
