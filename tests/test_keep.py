@@ -152,6 +152,21 @@ def test_keep_input_errors(tmp_path, partial):
     assert partial.read_bytes() == before
 
 
+def test_a_kept_layout_of_another_scene_file_of_the_same_name_names_both_and_the_difference(tmp_path):
+    """Two scene files both named ``tiny``, 4 m and 8 m long: the refusal once read "scene 'tiny'
+    is not the optimized scene 'tiny'" (stop 77's probe); it names both files and the length."""
+    text = (ROOT / "tests" / "data" / "tiny.toml").read_text()
+    (tmp_path / "tiny.toml").write_text(text)
+    (tmp_path / "long.toml").write_text(text.replace("length_m = 4.0", "length_m = 8.0"))
+    write_layout(Layout(str(tmp_path / "long.toml"), []), tmp_path / "partial.json")
+    r = shoha("optimize", str(tmp_path / "tiny.toml"), "--keep", str(tmp_path / "partial.json"),
+              "--out", str(tmp_path / "out.json"), "--time-limit", "5")
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert f"scene 'tiny' ({tmp_path / 'long.toml'}) is not the optimized scene 'tiny' " \
+           f"({tmp_path / 'tiny.toml'}): its section (length 8.0 against 4.0) differs" in r.stderr, r.stderr
+    assert not (tmp_path / "out.json").exists()
+
+
 def test_the_api_refuses_a_kept_layout_it_cannot_complete_in_time(mini):
     """``optimize(keep=...)``, as a library caller or a service calls it, refuses what the CLI
     refuses, before its clock runs: crowded copies, more blocks than the zone holds, repeats."""

@@ -735,7 +735,24 @@ def check_same_scene(scene: Scene, reference: Scene, where: str, against: str = 
     """Raise InputError if a save and the reference (or ``against`` another: "the optimized")
     are not for the same breakwater."""
     if scene.design != reference.design or scene.block_type != reference.block_type:
-        raise InputError(f"{where}: scene {scene.name!r} is not {against} scene {reference.name!r}")
+        # Two files may share a name and differ (a probe's "scene 'tiny' is not the optimized
+        # scene 'tiny'"): the file and what differs are named.
+        ours, theirs = (f"{s.name!r}" + (f" ({s.source})" if s.source and s.source != s.name else "")
+                        for s in (scene, reference))
+        what = ("its block" if scene.design == reference.design
+                else f"its section ({_section_difference(scene, reference)})")
+        raise InputError(f"{where}: scene {ours} is not {against} scene {theirs}: {what} differs")
+
+
+def _section_difference(scene: Scene, reference: Scene) -> str:
+    """The first measure of the design section in which two scenes differ, in words."""
+    measures = (("crest_width", "crest"), ("height", "height"), ("slope", "slopes"), ("length", "length"),
+                ("wall", "wall"))
+    for name, label in measures:
+        a, b = getattr(scene, name), getattr(reference, name)
+        if a != b:
+            return f"{label} {a} against {b}"
+    return "its prism"
 
 
 def score(
