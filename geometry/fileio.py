@@ -36,13 +36,35 @@ def check_replaceable(path: str | os.PathLike) -> None:
     _refuse_other_kinds(path, st, "; output files are written whole, in place of what is there")
 
 
+def _temporary(path: Path) -> Path:
+    """The file :func:`atomic_write` writes first, beside ``path``."""
+    return path.with_name(f".{path.name}.{os.getpid()}.tmp")
+
+
+def check_writable(path: str | os.PathLike) -> None:
+    """Refuse, before any work, an output path whose folder takes no file of its name: the
+    temporary file :func:`atomic_write` would write is made and removed at once (``path``
+    itself is not touched). ``--out /proc/x.json`` and a name too long for the file system
+    were refused only once a run had spent its whole limit (stop 77's probe)."""
+    tmp = _temporary(Path(path))
+    try:
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    except FileExistsError:
+        return  # this process's own temporary file: the write replaces it
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    os.close(fd)
+    with contextlib.suppress(OSError):
+        os.unlink(tmp)
+
+
 def atomic_write(path: str | os.PathLike, data: bytes | str) -> None:
     """Write ``data`` to ``path`` through a temporary file and an atomic rename."""
     path = Path(path)
     check_replaceable(path)
     if isinstance(data, str):
         data = data.encode()
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = _temporary(path)
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)

@@ -418,3 +418,19 @@ def test_scene_export_writes_all_its_files_or_none(tmp_path):
     _assert_bad(shoha("scene", "export", "mini", "--out", str(tmp_path / "a" / "b")), "does not exist")
     _assert_bad(shoha("scene", "export", "mini", "--out", "", cwd=tmp_path), "name a folder")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_an_output_name_the_file_system_refuses_is_refused_before_the_work(tmp_path, monkeypatch, capsys):
+    """``--out`` with a name too long for the file system: refused with one line before the
+    search (the optimizer is never called), where it was found only once a run had spent its
+    whole limit (stop 77's probe)."""
+    import optimizer.api
+    from optimizer.cli import main
+
+    called = []
+    monkeypatch.setattr(optimizer.api, "optimize", lambda *a, **k: called.append(a))
+    out = tmp_path / ("a" * 300 + ".json")
+    assert main(["optimize", str(ROOT / "tests" / "data" / "tiny.toml"), "--out", str(out),
+                 "--time-limit", "60"]) == 2
+    assert "cannot write (File name too long)" in capsys.readouterr().err
+    assert not called and list(tmp_path.iterdir()) == []

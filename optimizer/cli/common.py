@@ -12,7 +12,7 @@ from typing import Any
 import click
 
 from geometry.errors import InputError
-from geometry.fileio import check_replaceable
+from geometry.fileio import check_replaceable, check_writable
 
 
 def emit(payload: dict[str, Any], as_json: bool, human: str) -> None:
@@ -32,6 +32,7 @@ def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
     if not parent.is_dir():
         raise InputError(f"{path}: folder {parent} does not exist")
     check_replaceable(p)
+    check_writable(p)
     return p
 
 
