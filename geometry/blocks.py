@@ -612,7 +612,12 @@ def _load_mesh(p: Path) -> tuple[np.ndarray, np.ndarray]:
     try:
         loaded = trimesh.load(str(p), file_type=suffix, force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types on malformed files
-        raise InputError(f"{p}: cannot read mesh ({type(exc).__name__}: {exc})") from exc
+        # The reader's own words where they are about the file; an index or a key out of
+        # range in its code says only that the file is malformed (stop 77's probe showed
+        # "IndexError: index 98 is out of bounds" for an OBJ face naming a missing vertex).
+        why = ("its faces or fields name parts it does not have" if isinstance(exc, (IndexError, KeyError))
+               else str(exc) or type(exc).__name__)
+        raise InputError(f"{p}: cannot read the mesh as .{suffix}: {why}") from exc
     vertices = np.asarray(getattr(loaded, "vertices", np.zeros((0, 3))), dtype=float)
     faces = np.asarray(getattr(loaded, "faces", np.zeros((0, 3))), dtype=np.int64)
     if len(faces) == 0:
