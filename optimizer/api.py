@@ -386,9 +386,12 @@ class OptimizeResult:
                     "required count is too small for the target porosity")
         if self.collisions or self.outside_design_prism_m3 <= self.outside_budget_m3:
             return ""
-        return (f"\nthe {self.blocks} blocks placed already hold {self.outside_design_prism_m3:.1f} m³ "
+        # Enough digits that the two figures read apart (0.5 and 0.5 once read as a contradiction).
+        held, budget = self.outside_design_prism_m3, self.outside_budget_m3
+        digits = next((d for d in range(1, 7) if round(held, d) != round(budget, d)), 6)
+        return (f"\nthe {self.blocks} blocks placed already hold {held:.{digits}f} m³ "
                 f"outside the design prism, where all {self.required_blocks} may hold at most "
-                f"{self.outside_budget_m3:.1f} m³ with the porosity within {TARGET_POINTS:g} point of "
+                f"{budget:.{digits}f} m³ with the porosity within {TARGET_POINTS:g} point of "
                 "its target: no layout that keeps these blocks where they are reaches both the count "
                 "and the porosity")
 

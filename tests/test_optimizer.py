@@ -976,6 +976,10 @@ def test_summary_says_when_the_blocks_placed_hold_more_outside_than_the_count_ma
         "\nthe 65 blocks placed already hold 19.7 m³ outside the design prism, where all 75 may hold "
         "at most 14.0 m³ with the porosity within 1 point of its target: no layout that keeps these "
         "blocks where they are reaches both the count and the porosity")
+    # Figures that round alike at one digit get more (0.5 and 0.5 read as a contradiction).
+    close = replace(short, outside_design_prism_m3=0.5341, outside_budget_m3=0.4987)
+    assert "already hold 0.53 m³ outside the design prism, where all 75 may hold at most 0.50 m³" \
+        in close.summary()
     for other in (replace(short, outside_design_prism_m3=13.9), replace(short, blocks=75),
                   replace(short, collisions=2), replace(short, outside_budget_m3=None)):
         assert "placed already hold" not in other.summary()
