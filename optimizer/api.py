@@ -540,12 +540,13 @@ def optimize(
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     stream = streams(seed)
     spread = lattice is None and not keep  # a pattern given is laid as given; kept blocks set their own
+    nowhere = fits_nowhere(scene) is not None  # then no search runs, and no pattern is tuned for one
     tune_phase = None
     if lattice is None:
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
         t0 = clock()
-        lattice, tuning = pattern_for(scene.block, scene.block_type,
-                                      min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS), clock)
+        tune_seconds = 0.0 if nowhere else min(TUNE_SHARE * time_limit, TUNE_MAX_SECONDS)
+        lattice, tuning = pattern_for(scene.block, scene.block_type, tune_seconds, clock)
         if tuning.source != "built in":
             tune_phase = {"strategy": "tune", "attempt": 1, "seconds": clock() - t0, **asdict(tuning),
                           "area_per_block_m2": lattice.area_per_block, "blocks": 0,
@@ -567,6 +568,8 @@ def optimize(
         meter=SettleMeter(earliest=start + (1.0 - RESERVE_SHARE) * time_limit),
     )
     strategies_run = list(strategies) if strategies is not None else default_strategies(bound)
+    if nowhere:
+        strategies_run = []  # no block fits anywhere in the zone: the summary says why (shortfall)
     spread_phase = None
     if spread and any(isinstance(s, BeamSearch) for s in strategies_run):
         # A pattern denser than the target fills a tall mound's count with its top empty: spread.
@@ -702,22 +705,29 @@ def single_layer(build: Build) -> tuple[float, float] | None:
 ZONE_OVERFILL = 2.0
 
 
-def beyond_reach(scene: Scene) -> str | None:
-    """Why no layout of ``scene`` can reach its count, where a bound shows it; else None.
-
-    * No block fits in the tolerance zone at all: the block, turned any way, is at least as
-      thick as the ball inside its convex hull is wide, and the zone is less high than that
-      (a 0.3 m mound of 1.66 m Shake Blocks searched its whole limit, and said a longer one
-      might place more: stop 77's probe).
-    * The required blocks' volume is over ``ZONE_OVERFILL`` times the zone's (100 000 blocks of
-      1.7 m³ asked of a 160 m³ zone).
-    """
+def fits_nowhere(scene: Scene) -> str | None:
+    """Why no block of ``scene`` fits in its tolerance zone, where a bound shows it; else None:
+    the block, turned any way, is at least as thick as the widest ball inside its convex hull,
+    and the zone is less high than that. (A 0.3 m mound of 1.66 m Shake Blocks searched its
+    whole limit, and said a longer one might place more: stop 77's probe.) ``optimize`` then
+    runs no search."""
     zone = scene.tolerance
     high = zone.z_top - zone.z_bottom
     thick = 2.0 * inscribed_radius(scene.block.vertices)
     if thick > high:
         return (f"no block fits in the tolerance zone: turned any way, the block is at least {thick:.2f} m "
                 f"thick (the widest ball inside its convex hull), and the zone is {high:.2f} m high")
+    return None
+
+
+def beyond_reach(scene: Scene) -> str | None:
+    """Why no layout of ``scene`` can reach its count, where a bound shows it; else None: no
+    block fits at all (:func:`fits_nowhere`), or the required blocks' volume is over
+    ``ZONE_OVERFILL`` times the zone's (100 000 blocks of 1.7 m³ asked of a 160 m³ zone)."""
+    nowhere = fits_nowhere(scene)
+    if nowhere is not None:
+        return nowhere
+    zone = scene.tolerance
     need = scene.required_blocks * scene.block.volume
     if need > ZONE_OVERFILL * zone.volume:
         return (f"no layout holds {scene.required_blocks} blocks: they are {need:.4g} m³ of concrete, and "

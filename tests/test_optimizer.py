@@ -1660,3 +1660,5 @@ def test_a_count_no_layout_can_reach_is_said_so_not_blamed_on_the_time(tmp_path,
     r = optimize(load_scene(str(tmp_path / "scene.toml")), seed=1, time_limit=3.0)
     assert r.blocks < r.required_blocks
     assert words in r.shortfall and "a longer --time-limit" not in r.summary()
+    searched = {p["strategy"] for p in r.phases} & {"beam", "fill", "anneal"}
+    assert not searched if words.startswith("no block fits") else searched  # no search where none fits
