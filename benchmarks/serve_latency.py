@@ -31,6 +31,11 @@ Cases and targets (issue 25):
 ``size-N``
     moves in sessions of N blocks of ``full`` (75 to 1000), for the chart of
     latency against session size beside the paper's Table VI.
+``beside-hints``
+    a ``mini`` session follows the live hints (a hint, then that block laid, 70 times)
+    while another moves a block every 20 ms: the moves' times. A hint lets its block
+    go in a short settle; until stop 77 it held every session meanwhile (moves p50
+    7.4 ms, at most 381 ms in a hand run), and now runs in a worker thread. No target.
 ``heap``
     ``HEAP`` blocks thrown at one place on ``mini`` (centroids scattered 0.5 m
     about it, tilted at random), then as many moves of the laid ones to other
@@ -53,6 +58,7 @@ import argparse
 import json
 import multiprocessing
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -168,6 +174,15 @@ def watch(url: str, conn: Any, ready: Any, stop: Any) -> None:
                 continue
             arrived[json.loads(text)["version"]] = time.perf_counter()
     conn.send(arrived)
+
+
+def follow_hints(client: Client, sid: str, blocks: int) -> None:
+    """Ask for a hint and lay its block, ``blocks`` times or until none is ready."""
+    for key in range(blocks):
+        hint = client.http.get(f"/sessions/{sid}/hint").json()
+        if hint["status"] != "ready":
+            return
+        client.http.put(f"/sessions/{sid}/blocks/{key}", json=hint["block"]).raise_for_status()
 
 
 def lay_then_move(client: Client, sid: str, placed: list, moves: int) -> tuple[list, list, list, list]:
@@ -286,6 +301,24 @@ def main() -> int:
         if len(events) < len(sent):
             print(f"event: {len(sent) - len(events)} of {len(sent)} events never arrived")
         client.http.delete(f"/sessions/{sid}")
+
+        # beside-hints: one session follows the hints while another moves a block.
+        hinted, moving = client.session("mini"), client.session("mini")
+        for key, block, pose in mini[:20]:
+            client.put(moving, key, block, pose)
+        follower = Client(svc.url)
+        following = threading.Thread(target=follow_hints, args=(follower, hinted, 70))
+        following.start()
+        beside, rng = [], np.random.default_rng(3)
+        key, block, pose = mini[5]
+        while following.is_alive():
+            t, _ = client.put(moving, key, block, moved(pose, rng, len(beside)))
+            beside.append(t)
+            time.sleep(0.02)
+        following.join()
+        row("beside-hints", 75, beside)
+        for sid_ in (hinted, moving):
+            client.http.delete(f"/sessions/{sid_}")
 
         # heap: blocks thrown at one place, most one inside another; each laid or refused.
         sid = client.session("mini")

@@ -894,3 +894,39 @@ def test_a_client_gone_before_its_body_is_no_internal_error():
         with httpx.Client(base_url=served.url) as http:
             assert http.post("/sessions", json={"scene": "mini"}).status_code == 201
     assert "internal error" not in served.log and "Traceback" not in served.log, served.log[-3000:]
+
+
+@pytest.mark.filterwarnings("ignore:Using `httpx` with `starlette.testclient`")
+def test_a_hint_is_worked_out_off_the_event_loop(monkeypatch):
+    """A hint lets its block go in a short settle: on the event loop it held every session for
+    its tens to hundreds of milliseconds. The app works it out in a worker thread (the hint
+    here is the real one, recorded where it ran)."""
+    import threading
+
+    from starlette.testclient import TestClient
+
+    from geometry.scene import load_scene
+    from optimizer.serve import service as service_module
+    from optimizer.serve.app import build_app
+    from optimizer.serve.service import Service
+
+    ran_in = []
+    real = service_module.first_fitting
+
+    def recorded(*args, **kwargs):
+        ran_in.append(threading.get_ident())
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(service_module, "first_fitting", recorded)
+    service = Service([load_scene("mini")], [str(REFERENCE)], reference_seconds=0)
+    loop_thread = []
+
+    async def on_loop() -> None:
+        loop_thread.append(threading.get_ident())
+
+    with TestClient(build_app(service), base_url="http://127.0.0.1") as client:
+        client.portal.call(on_loop)
+        sid = client.post("/sessions", json={"scene": "mini"}).json()["session"]
+        hint = client.get(f"/sessions/{sid}/hint").json()
+    assert hint["status"] == "ready", hint
+    assert ran_in and loop_thread and loop_thread[0] not in ran_in

@@ -233,7 +233,9 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
         return await service.score(sid(request))
 
     async def hint(request: Request) -> Any:
-        return service.hint(sid(request))
+        # Off the loop (its block is let go in a short settle), while the session's changes wait.
+        async with change_lock(request):
+            return await run_in_threadpool(service.prepare_hint(sid(request)))
 
     async def openapi(request: Request) -> Any:
         return schema()

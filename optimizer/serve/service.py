@@ -9,7 +9,10 @@ changes, so a refused request leaves the session as it was.
 Requests are answered on the event loop's one thread, one at a time, which
 is what keeps a session's changes in order; each costs milliseconds
 (:mod:`optimizer.serve.live`). Whatever takes longer (a reference, a score, a
-re-plan) runs in :class:`optimizer.serve.workers.Workers`.
+re-plan) runs in :class:`optimizer.serve.workers.Workers`; a whole save
+(:meth:`Service.prepare_layout`) and a hint (:meth:`Service.prepare_hint`), which
+take tens to hundreds of milliseconds, run in a worker thread while the
+session's changes wait (the app's change lock).
 """
 
 from __future__ import annotations
@@ -178,12 +181,14 @@ class Service:
         self.workers: Workers | None = None
         self._replans: dict[str, tuple[int, Future[dict[str, Any]] | None, list[PlanBlock]]] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
+        self._loop: asyncio.AbstractEventLoop | None = None
         self.latest: str | None = None
 
     # --- life -------------------------------------------------------------------------
 
     async def start(self) -> None:
         """Start the child processes, warm the scorer and queue the missing references."""
+        self._loop = asyncio.get_running_loop()
         self.workers = Workers()
         known = [(s.scene.source, s.ref_key, s.reference.to_dict()) for s in self.scenes.values()
                  if s.reference is not None]
@@ -370,8 +375,18 @@ class Service:
 
     def hint(self, sid: str) -> dict[str, Any]:
         """The next block to lay (:mod:`optimizer.serve.hint`), in the session's frame."""
+        return self.prepare_hint(sid)()
+
+    def prepare_hint(self, sid: str) -> Callable[[], dict[str, Any]]:
+        """:meth:`hint`'s work, to run off the event loop: a hint lets its block go in a short
+        settle (tens of milliseconds, a few hundred at most), and every session waited for it.
+        The session is looked up here, on the loop; the function returned reads the session's
+        blocks, which the app changes no one meanwhile (its change lock)."""
         started = time.perf_counter()
         session = self._session(sid)
+        return lambda: self._hint_of(session, started)
+
+    def _hint_of(self, session: Session, started: float) -> dict[str, Any]:
         served = self._served(session)
         if served.reference is None:
             return {"block": None, "source": "reference", "status": "pending" if served.status in (
@@ -418,8 +433,9 @@ class Service:
             assert self.workers is not None
             future = self.workers.submit_replan(session.scene.source, session.layout(), self.replan_seconds)
             self._replans[session.id] = (session.version, future, plan)
-            # The pool calls back on its own thread: hand the result to the event loop's.
-            loop = asyncio.get_running_loop()
+            # The pool calls back on its own thread: hand the result to the event loop's (this
+            # may run in a worker thread: the loop is the one the service started on).
+            loop = self._loop if self._loop is not None else asyncio.get_running_loop()
             future.add_done_callback(
                 lambda f, sid=session.id: loop.call_soon_threadsafe(self._replanned, sid, f))
         return {"block": None, "source": "replan", "status": "pending",
