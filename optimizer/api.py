@@ -741,7 +741,10 @@ def inscribed_radius(points: np.ndarray) -> float:
     from scipy.optimize import linprog
     from scipy.spatial import ConvexHull
 
-    eq = ConvexHull(points).equations  # n . x + d <= 0 inside, |n| = 1
+    try:
+        eq = ConvexHull(points).equations  # n . x + d <= 0 inside, |n| = 1
+    except Exception:  # qhull refuses a flat or degenerate set: no ball, and no claim made
+        return 0.0
     res = linprog(c=[0.0, 0.0, 0.0, -1.0], A_ub=np.column_stack([eq[:, :3], np.ones(len(eq))]),
                   b_ub=-eq[:, 3], bounds=[(None, None)] * 3 + [(0.0, None)])
     return float(res.x[3]) if res.success else 0.0

@@ -1662,3 +1662,15 @@ def test_a_count_no_layout_can_reach_is_said_so_not_blamed_on_the_time(tmp_path,
     assert words in r.shortfall and "a longer --time-limit" not in r.summary()
     searched = {p["strategy"] for p in r.phases} & {"beam", "fill", "anneal"}
     assert not searched if words.startswith("no block fits") else searched  # no search where none fits
+
+
+def test_the_ball_inside_a_hull_bounds_its_thinnest_width():
+    """``inscribed_radius``: 1 for a 2 m cube wherever it lies and however it is turned, the
+    half of its thinnest side for a slab, and 0 (no claim) for points in one plane."""
+    from optimizer.api import inscribed_radius
+
+    cube = np.array(list(itertools.product([-1.0, 1.0], repeat=3)))
+    turned = cube @ Pose([0, 0, 0], random_quaternion(np.random.default_rng(1))).rotation.T + 1000.0
+    assert inscribed_radius(cube) == pytest.approx(1.0) and inscribed_radius(turned) == pytest.approx(1.0)
+    assert inscribed_radius(cube * [3.0, 2.0, 0.25]) == pytest.approx(0.25)
+    assert inscribed_radius(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]])) == 0.0
