@@ -434,3 +434,23 @@ def test_an_output_name_the_file_system_refuses_is_refused_before_the_work(tmp_p
                  "--time-limit", "60"]) == 2
     assert "cannot write (File name too long)" in capsys.readouterr().err
     assert not called and list(tmp_path.iterdir()) == []
+
+
+def test_a_batch_rows_file_appended_to_needs_no_new_file_beside_it(tmp_path, monkeypatch):
+    """A batch appends its rows in place: an existing rows file is checked for writing, not by
+    a temporary file beside it, which a folder closed to new files refuses (a review of stop 77
+    found a resumed batch refused so). An output written whole still gets the probe."""
+    from geometry.errors import InputError
+    from optimizer.cli import common
+
+    def closed_folder(path):
+        raise InputError(f"{path}: cannot write (Permission denied)")
+
+    monkeypatch.setattr(common, "check_writable", closed_folder)
+    rows = tmp_path / "rows.csv"
+    rows.write_text("scene,score\n")
+    assert common.check_out(str(rows), (".csv", ".jsonl"), atomic=False) == rows
+    with pytest.raises(InputError):
+        common.check_out(str(tmp_path / "new.csv"), (".csv", ".jsonl"), atomic=False)
+    with pytest.raises(InputError):
+        common.check_out(str(rows), (".csv",))

@@ -930,3 +930,55 @@ def test_a_hint_is_worked_out_off_the_event_loop(monkeypatch):
         hint = client.get(f"/sessions/{sid}/hint").json()
     assert hint["status"] == "ready", hint
     assert ran_in and loop_thread and loop_thread[0] not in ran_in
+
+
+def test_a_session_ended_while_its_hint_is_worked_out_starts_no_replan(tmp_path):
+    """A hint is worked out in a thread, and the session may end (expire, or be ended by a
+    request made before the app's lock) meanwhile: no re-plan is started for it, and a re-plan
+    read back for a session just ended is no internal error (a review of stop 77 found a re-plan
+    left running for no one, and a KeyError)."""
+    from concurrent.futures import Future
+
+    from geometry.layout import write_layout
+    from geometry.scene import load_scene
+    from optimizer.serve.service import Service
+
+    first = Layout("mini", read_layout(REFERENCE).blocks[:10])
+    short = tmp_path / "short.json"
+    write_layout(first, short)
+
+    def fresh() -> tuple[Service, str, list]:
+        service = Service([load_scene("mini")], [str(short)], reference_seconds=0)
+        sid = service.create_session({"scene": "mini", "frame": "world"})["session"]
+        for p in first.blocks:
+            service.put_block(sid, str(p.id), {"position": list(p.pose.position),
+                                               "quaternion": list(p.pose.quaternion)})
+        submitted: list = []
+
+        class Workers:
+            def submit_replan(self, *args):
+                submitted.append(args)
+                return Future()
+
+        service.workers = Workers()
+        return service, sid, submitted
+
+    service, sid, submitted = fresh()
+    work = service.prepare_hint(sid)
+    service.end_session(sid)
+    hint = work()
+    assert hint["status"] == "unavailable" and "ended" in hint["message"], hint
+    assert not submitted and sid not in service._replans
+
+    service, sid, submitted = fresh()
+    done: Future = Future()
+    done.set_result(json.loads(first.dumps()))
+    service._replans[sid] = (service._session(sid).version, done, [])
+    replanned = service._replanned
+
+    def then_ended(key, future):
+        replanned(key, future)
+        service.end_session(key)
+
+    service._replanned = then_ended
+    assert service.prepare_hint(sid)()["status"] == "unavailable"

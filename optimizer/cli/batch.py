@@ -88,7 +88,7 @@ def batch_score(saves: tuple[str, ...], reference: str, source: str, block_type:
     if not 0 < seconds <= MAX_SECONDS:
         raise InputError(f"--seconds {seconds}: must be more than 0 and at most {MAX_SECONDS:g}")
     check_scheduler(scheduler)
-    rows = RowFile(check_out(out, (".csv", ".jsonl")), SCORE_COLUMNS)
+    rows = RowFile(check_out(out, (".csv", ".jsonl"), atomic=False), SCORE_COLUMNS)
     read_layout(reference).load_scene()  # a bad reference is bad usage, not 200 error rows
     ref_sha = sha256_file(reference)
     xyz = parse_origin(origin)
@@ -138,7 +138,7 @@ def batch_optimize(scenes: tuple[str, ...], seeds: str, time_limit: float | None
 
     check_time_limit(time_limit)
     check_scheduler(scheduler)  # before the layouts' folder is made
-    rows = RowFile(check_out(out, (".csv", ".jsonl")), OPTIMIZE_COLUMNS)
+    rows = RowFile(check_out(out, (".csv", ".jsonl"), atomic=False), OPTIMIZE_COLUMNS)
     folder = Path(layouts)
     if folder.exists() and not folder.is_dir():
         raise InputError(f"{layouts}: is a file, not a folder")

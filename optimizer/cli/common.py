@@ -23,8 +23,10 @@ def emit(payload: dict[str, Any], as_json: bool, human: str) -> None:
         click.echo(human)
 
 
-def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
-    """Validate an output path before any work is done."""
+def check_out(path: str, suffixes: tuple[str, ...] | None = None, atomic: bool = True) -> Path:
+    """Validate an output path before any work is done. ``atomic``: the output is written
+    whole through a temporary file beside it (:func:`geometry.fileio.atomic_write`); else it is
+    appended to in place (a batch's rows), and an existing file need only be writable."""
     p = Path(path)
     if suffixes and p.suffix.lower() not in suffixes:
         raise InputError(f"{path}: output must end in {' or '.join(suffixes)}")
@@ -32,7 +34,10 @@ def check_out(path: str, suffixes: tuple[str, ...] | None = None) -> Path:
     if not parent.is_dir():
         raise InputError(f"{path}: folder {parent} does not exist")
     check_replaceable(p)
-    check_writable(p)
+    if atomic or not p.exists():
+        check_writable(p)
+    elif not os.access(p, os.W_OK):
+        raise InputError(f"{path}: cannot write (permission denied)")
     return p
 
 

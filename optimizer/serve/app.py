@@ -195,7 +195,9 @@ def build_app(service: Service, *, token: str | None = None, local: bool = True,
         return service.get_session(sid(request))
 
     async def end_session(request: Request) -> Any:
-        service.end_session(sid(request))
+        # After a hint or a whole save of the session being worked out in a thread.
+        async with change_lock(request):
+            service.end_session(sid(request))
         return None
 
     # A session's changes in the order they came: a whole save is measured in a worker thread

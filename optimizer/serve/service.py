@@ -221,6 +221,8 @@ class Service:
         while True:
             await asyncio.sleep(min(60.0, max(1.0, self.store.idle_s / 4)))
             self.store.expire()
+            for sid in [sid for sid in self._replans if self.store.peek(sid) is None]:
+                del self._replans[sid]  # an expired session's re-plan is no one's
 
     async def _compute_references(self) -> None:
         """One scene at a time, smallest first: the cache, or an optimize in the child process."""
@@ -421,7 +423,7 @@ class Service:
             # The re-plan of the blocks as laid now is done: its plan read here (the pool's
             # callback may not have run yet).
             self._replanned(session.id, future)
-            plan = self._replans[session.id][2]
+            plan = self._replans.get(session.id, (version, future, plan))[2]
         found = first_fitting(session.scene, session.live, plan) if plan else None
         if found is not None:
             return self._hint(session, found, "replan", started)
@@ -429,6 +431,10 @@ class Service:
             return {"block": None, "source": "replan", "status": "unavailable",
                     "message": "no block of the re-plan around the laid blocks fits",
                     "seconds": time.perf_counter() - started}
+        if self.store.peek(session.id) is not session:
+            # Ended (or expired) while this hint was worked out in its thread: no re-plan for it.
+            return {"block": None, "source": "replan", "status": "unavailable",
+                    "message": "the session has ended", "seconds": time.perf_counter() - started}
         if future is None or (future.done() and version != session.version):
             assert self.workers is not None
             future = self.workers.submit_replan(session.scene.source, session.layout(), self.replan_seconds)
