@@ -540,7 +540,8 @@ def optimize(
     time_limit = default_time_limit(scene) if time_limit is None else float(time_limit)
     stream = streams(seed)
     spread = lattice is None and not keep  # a pattern given is laid as given; kept blocks set their own
-    nowhere = fits_nowhere(scene) is not None  # then no search runs, and no pattern is tuned for one
+    beyond = beyond_reach(scene)  # why no layout reaches the count, where a bound shows it
+    nowhere = beyond is not None and beyond.startswith(NO_BLOCK_FITS)  # no search, no pattern tuned
     tune_phase = None
     if lattice is None:
         # A block with no tuned pattern is tuned now, within a share of the limit, and cached.
@@ -667,7 +668,7 @@ def optimize(
         cover_attempt=cover_note,
         searched=best.searched,
         shortfall=shortfall(best.phases, problem.required, len(build), time_limit, bool(keep),
-                            one_layer=single_layer(build), beyond=beyond_reach(scene)),
+                            one_layer=single_layer(build), beyond=beyond),
         coverage_left_out=report_.coverage is None,
         outside_budget_m3=outside_budget(scene),
     )
@@ -703,6 +704,8 @@ def single_layer(build: Build) -> tuple[float, float] | None:
 #: :func:`beyond_reach` to call the count out of reach: valid blocks overlap only in contacts
 #: at most ``tol.contact_depth`` deep, a sliver of their volume.
 ZONE_OVERFILL = 2.0
+#: How :func:`fits_nowhere`'s words begin.
+NO_BLOCK_FITS = "no block fits in the tolerance zone"
 
 
 def fits_nowhere(scene: Scene) -> str | None:
@@ -715,7 +718,7 @@ def fits_nowhere(scene: Scene) -> str | None:
     high = zone.z_top - zone.z_bottom
     thick = 2.0 * inscribed_radius(scene.block.vertices)
     if thick > high:
-        return (f"no block fits in the tolerance zone: turned any way, the block is at least {thick:.2f} m "
+        return (f"{NO_BLOCK_FITS}: turned any way, the block is at least {thick:.2f} m "
                 f"thick (the widest ball inside its convex hull), and the zone is {high:.2f} m high")
     return None
 

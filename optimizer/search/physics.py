@@ -38,6 +38,8 @@ from .build import GROUND, Build, Candidate
 from .drop import Shape
 from .problem import Phase, Problem
 
+#: How far around a block let go its neighbours are taken in, held fixed, in bounding radii.
+LET_GO_REACH = 2.5
 #: Simulated seconds a candidate is let go for (it stops early once at rest).
 LOCAL_SECONDS = 2.0
 #: A candidate that moves less than this when let go stays where it was
@@ -90,7 +92,7 @@ def settle_in(problem: Problem, build: Build, candidate: Candidate) -> Candidate
     """
     key = -2  # not a key any build uses
     block = build.block
-    near = build.collide.neighbours(candidate.pose.position, 2.5 * block.bounding_radius)
+    near = build.collide.neighbours(candidate.pose.position, LET_GO_REACH * block.bounding_radius)
     placed = [(k, block, build.poses[k]) for k in near] + [(key, block, candidate.pose)]
     result = let_go(problem.scene, placed, key)
     if result is None:
@@ -145,7 +147,7 @@ def held_up(problem: Problem, build: Build, candidate: Candidate, gone: Collecti
         return True
     key = -2  # not a key any build uses
     block = build.block
-    reach = 2.5 * block.bounding_radius
+    reach = LET_GO_REACH * block.bounding_radius
     around = set(build.collide.neighbours(candidate.pose.position, reach, exclude=held))
     for k in supports:
         around.update(build.collide.neighbours(build.poses[k].position, reach, exclude=held))

@@ -48,7 +48,7 @@ from geometry.tolerance import TrapezoidalPrism, outside_volume
 
 from ..score.scoring import PLACE_FRACTION
 from ..search.drop import DropWorld, Shape
-from ..search.physics import let_go
+from ..search.physics import LET_GO_REACH, let_go
 from .live import LiveLayout
 
 #: How far from its plan height (a fraction of the block height H) a lowered
@@ -123,7 +123,7 @@ def _at_rest(scene: Scene, live: LiveLayout, b: PlanBlock, pose: Pose) -> Pose |
     """Where plan block ``b`` lowered to ``pose`` comes to rest when let go among the laid blocks
     (held still), if that is still its place and valid (module docstring, 4); None otherwise."""
     key = -1  # a block id is never negative
-    around = live.near(pose.position, 2.5 * b.block.bounding_radius)
+    around = live.near(pose.position, LET_GO_REACH * b.block.bounding_radius)
     result = let_go(scene, [*around, (key, b.block, pose)], key)
     if result is None:
         return None

@@ -129,9 +129,6 @@ class LiveLayout:
         self._shared_now: dict[int, float] = {}
         #: Each touching pair's intersection volume (0 where it is empty), m^3.
         self._part_m3: dict[tuple[int, int], float] = {}
-        #: Each block's intersection volumes with the blocks it touches, summed, m^3
-        #: (:func:`geometry.checks.overlapping` keeps it within the block's own volume).
-        self._overlap: dict[int, float] = {}
 
     # --- reading --------------------------------------------------------------
 
@@ -215,7 +212,7 @@ class LiveLayout:
         if (wrong := overlapping(block, key, sum(volumes.values()))) is not None:
             raise BodyError(422, wrong)
         for other, v in volumes.items():
-            theirs = self._overlap[other] - self._part_m3.get(_pair(key, other), 0.0) + v
+            theirs = self._overlap(other) - self._part_m3.get(_pair(key, other), 0.0) + v
             if (wrong := overlapping(self._blocks[other].block, other, theirs)) is not None:
                 raise BodyError(422, f"with block {key} laid there, {wrong}")
         # Checked: from here on the block is laid.
@@ -234,8 +231,6 @@ class LiveLayout:
         for other, part in parts.items():
             self._parts[_pair(key, other)] = part
             self._part_m3[_pair(key, other)] = volumes[other]
-            self._overlap[other] += volumes[other]
-        self._overlap[key] = sum(volumes.values())
         touching = set(found)
         # A block wholly inside the convex prism has every part of it inside.
         shared = self._inside([p for p in parts.values() if p is not None], trim=inside < block.volume)
@@ -260,8 +255,7 @@ class LiveLayout:
         for other in touching:
             self._touching[other].discard(key)
             self._collisions.pop(_pair(key, other), None)
-            self._overlap[other] -= self._part_m3.pop(_pair(key, other))
-        del self._overlap[key]
+            del self._part_m3[_pair(key, other)]
         parts = [self._parts.pop(_pair(key, other)) for other in touching]
         shared = self._shared_now.pop(key, None)
         if shared is None:
@@ -281,6 +275,11 @@ class LiveLayout:
             self._filled = 0.0  # drop accumulated rounding with the last block
 
     # --- the checks ---------------------------------------------------------
+
+    def _overlap(self, key: int) -> float:
+        """Block ``key``'s intersection volumes with the blocks it touches, summed, m^3
+        (:func:`geometry.checks.overlapping` keeps it within the block's own volume)."""
+        return sum(self._part_m3[_pair(key, other)] for other in self._touching[key])
 
     def _inside(self, parts: list[m3.Manifold], trim: bool = True) -> float:
         """Volume of the union of ``parts`` inside the design prism, m^3 (of the union, if not ``trim``).
