@@ -80,7 +80,9 @@ Multi-point CCD
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 import mujoco
 import numpy as np
@@ -317,14 +319,13 @@ class MujocoBackend(SettleBackend):
             # MuJoCo prints its warnings ("Too many contacts...") on stderr, where a --json
             # run's one-line summary is read; they are read from ``data.warning`` instead
             # (``_check_health``: no answer, diverged). The handler is set only while MuJoCo
-            # steps: one left set at exit made nanobind report leaks on stderr.
-            mujoco.set_mju_user_warning(_quiet)
-            try:
-                mujoco.mj_step(model, data, nstep=n)
-            except mujoco.FatalError as exc:  # its stack overflowed: blocks one inside another
-                raise Diverged(f"MuJoCo stopped at step {done[0]}: {exc}") from exc
-            finally:
-                mujoco.set_mju_user_warning(None)
+            # steps (in any thread: ``_quieted``): one left set at exit made nanobind report
+            # leaks on stderr.
+            with _quieted():
+                try:
+                    mujoco.mj_step(model, data, nstep=n)
+                except mujoco.FatalError as exc:  # its stack overflowed: blocks one inside another
+                    raise Diverged(f"MuJoCo stopped at step {done[0]}: {exc}") from exc
             done[0] += n
             self._check_health(data, done[0])
 
@@ -348,6 +349,33 @@ class MujocoBackend(SettleBackend):
 
 def _quiet(text: str) -> None:
     """MuJoCo's warning handler while it steps: nothing printed (see ``simulate``)."""
+
+
+_stepping_lock = threading.Lock()
+_stepping = 0
+
+
+@contextmanager
+def _quieted() -> Iterator[None]:
+    """:func:`_quiet` as MuJoCo's warning handler while any thread steps a settle.
+
+    The handler is one for the process. Two settles step at once (a verdict's two kicks,
+    ``optimizer.search.physics.verdict``; the live service's threads), and the first to end
+    its steps must not unset it under the other: it is set by the first to begin and unset by
+    the last to end.
+    """
+    global _stepping
+    with _stepping_lock:
+        if _stepping == 0:
+            mujoco.set_mju_user_warning(_quiet)
+        _stepping += 1
+    try:
+        yield
+    finally:
+        with _stepping_lock:
+            _stepping -= 1
+            if _stepping == 0:
+                mujoco.set_mju_user_warning(None)
 
 
 def free_order(bodies: Sequence[SettleBody]) -> list[int]:

@@ -59,26 +59,40 @@ class SettleMeter:
     mostly fixed cost, and says little about the whole layout's). The slowest rate seen is
     kept: the confirming settles come at the end, and a machine busy once may be busy again.
 
+    The confirming settles are verdicts (``search.physics.verdict``: two settles, side by side
+    where there are two cores), and a verdict is timed as two settles of half its time. Once
+    one is, the verdicts' rate is the one used: a lone settle (a beam restart's ``stands``)
+    takes as long as a verdict whose two settles run at once on two free cores, and counted as
+    half a verdict it kept the covering moves on ``big-shake`` from 39 s the run had left.
+
     Attributes
     ----------
     rate : float or None
         Seconds a settle took, over ``blocks ** SETTLE_EXPONENT``; None until one is recorded.
+    verdict_rate : float or None
+        The same, of the verdicts' settles only.
     earliest : float
         The earliest clock value a search's deadline may be brought forward to (reserves
         take at most a share of the limit, ``optimizer.api.RESERVE_SHARE``).
     """
 
     rate: float | None = None
+    verdict_rate: float | None = None
     earliest: float = -np.inf
 
-    def record(self, blocks: int, seconds: float, required: int) -> None:
+    def record(self, blocks: int, seconds: float, required: int, verdict: bool = False) -> None:
+        """A whole-layout settle of ``blocks`` took ``seconds`` (a verdict's: half the verdict's time)."""
         if blocks >= max(1, required // 2):
             rate = seconds / blocks ** SETTLE_EXPONENT
             self.rate = rate if self.rate is None else max(self.rate, rate)
+            if verdict:
+                self.verdict_rate = rate if self.verdict_rate is None else max(self.verdict_rate, rate)
 
     def seconds(self, blocks: int) -> float | None:
-        """What one settle of ``blocks`` would take at the slowest rate seen, or None."""
-        return None if self.rate is None else self.rate * blocks ** SETTLE_EXPONENT
+        """What one settle of ``blocks`` would take at the slowest rate seen (of the verdicts,
+        once one is timed), or None."""
+        rate = self.verdict_rate if self.verdict_rate is not None else self.rate
+        return None if rate is None else rate * blocks ** SETTLE_EXPONENT
 
 
 @dataclass(frozen=True)
