@@ -265,7 +265,7 @@ class Confirmation:
 
 
 def verdict(problem: Problem, placed: list, rng: np.random.Generator,
-            movable: list[int] | None = None) -> SettleResult:
+            movable: list[int] | None = None, side_by_side: bool | None = None) -> SettleResult:
     """A settle from a random kick; if that stands, the settle from ``VERDICT_SEED``'s kick too.
 
     Its result is the first that fails, or the random kick's when both stand
@@ -273,16 +273,16 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
     pass one kick and fail another: only one that passes both is called
     stable.
 
-    Where the machine has two cores or more, the two settles run side by side
-    (:func:`_side_by_side`); the answer is the same as one after the other. The
-    verdict is timed into ``problem.meter`` as its settles, each at its share of
-    the verdict's time.
+    Where the machine has two cores or more (or ``side_by_side`` says so), the two
+    settles run side by side (:func:`_side_by_side`); the answer is the same as one
+    after the other. The verdict is timed into ``problem.meter`` as its settles, each
+    at its share of the verdict's time.
     """
     seed = int(rng.integers(2**31))
     t0 = problem.now()
     ran = [0]  # settles begun and not called off
     try:
-        if _two_cores():
+        if side_by_side if side_by_side is not None else _two_cores():
             return _side_by_side(problem, placed, seed, movable, ran)
         ran[0] = 1
         result = _settled_by(problem, placed, seed=seed, movable=movable)
