@@ -76,8 +76,8 @@ def main(argv: list[str] | None = None) -> int:
                "side_by_side_s": round(side, 3), "speedup": round(in_turn / side, 2),
                "stable": results[True].stable, "same_answer": same(results[False], results[True])}
         rows.append(row)
-        print(f"{n:5d} blocks: in turn {in_turn:7.2f} s, side by side {side:7.2f} s "
-              f"({in_turn / side:.2f}x), stable {row['stable']}, same answer {row['same_answer']}", flush=True)
+        print(f"{n:5d} blocks: in turn {in_turn:7.2f} s, side by side {side:7.2f} s ({in_turn / side:.2f}x), "
+              f"stable {row['stable']}, same answer {row['same_answer']}", flush=True)
     run.csv("verdict_speed", rows)
     run.done()
     return 0 if all(r["same_answer"] for r in rows) else 1

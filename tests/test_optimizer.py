@@ -1526,7 +1526,8 @@ def test_the_meter_estimates_verdicts_from_the_verdicts_once_one_is_timed():
     meter.record(100, 5.0, 100, verdict=True)
     assert meter.seconds(100) == pytest.approx(6.0)  # the slowest verdict seen
     meter.record(100, 30.0, 100)  # a lone settle, slower: not a verdict's measure
-    assert meter.seconds(100) == pytest.approx(6.0) and meter.rate == pytest.approx(30.0 / 100**SETTLE_EXPONENT)
+    assert meter.seconds(100) == pytest.approx(6.0)
+    assert meter.rate == pytest.approx(30.0 / 100**SETTLE_EXPONENT)
 
 
 def test_a_verdict_side_by_side_answers_as_one_in_turn(tiny, monkeypatch):
@@ -1567,7 +1568,7 @@ def test_a_verdict_side_by_side_answers_as_one_in_turn(tiny, monkeypatch):
     for placed, stands in ((standing, True), (falling, False)):
         answers = {}
         for two in (False, True):
-            monkeypatch.setattr(physics, "_two_cores", lambda two=two: two)
+            monkeypatch.setattr(physics, "_spare_core", lambda two=two: two)
             ended.clear()
             answered.clear()
             pr = problem(tiny)
@@ -1647,7 +1648,7 @@ def test_a_confirming_settle_that_outlasts_the_limit_is_stopped(tiny, monkeypatc
     import optimizer.search.physics as physics
     from optimizer.search.physics import SETTLE_GRACE, confirm
 
-    monkeypatch.setattr(physics, "_two_cores", lambda: two)
+    monkeypatch.setattr(physics, "_spare_core", lambda: two)
     clock = WorkClock(per_drop=0.001, per_settle=0.0).install(monkeypatch)
     settle = physics.settle
 

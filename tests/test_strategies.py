@@ -418,7 +418,7 @@ def test_a_failed_layout_is_not_settled_again_past_its_end(tiny, monkeypatch):
 
     # The work clock charges every settle begun, the one a failed kick calls off too: the counts
     # below are of the verdict's settles one after the other.
-    monkeypatch.setattr(physics, "_two_cores", lambda: False)
+    monkeypatch.setattr(physics, "_spare_core", lambda: False)
     rest = tiny.block.rest_poses[0]
     low = rest.centroid_height
     runs = {}
