@@ -24,6 +24,7 @@ import threading
 from collections.abc import Callable, Collection
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 
@@ -299,28 +300,38 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
                              verdict=True)
 
 
-#: A verdict's second settle runs beside the first only while the machine's load (its 1-minute
-#: average) is under the cores this process may use less this many: a core is then idle.
-IDLE_CORE = 0.5
-
-
 def _spare_core() -> bool:
     """Whether a core is idle for a verdict's second settle: this process may run on two or
-    more, and the machine's load leaves one free (:data:`IDLE_CORE`).
+    more, and fewer threads than that are running on the machine now, this one among them
+    (``/proc/loadavg``'s count of running threads, the least of three looks; elsewhere, the
+    1-minute load average under the cores less half).
 
     Where every core is busy, the second settle only takes its core from other work: in
     ``generality.py``'s two runs at once on 2 cores, each verdict's second thread slowed the
-    other run's search, and ``big-shake`` seeds 1 and 2 came out 263 and 229 of 269, where one
-    after the other they had reached 269 (2026-12-07).
+    other run's search, and ``big-shake`` seeds 1 and 2 came out 263 and 229 of 269 (2026-12-07).
+    The 1-minute average alone is too slow for that: a minute after both runs begin it is still
+    under 1.5.
     """
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
     if cores < 2:
         return False
+    running = _running_threads()
+    if running is not None:
+        return running < cores
     try:
-        load = os.getloadavg()[0]
+        return os.getloadavg()[0] < cores - 0.5
     except OSError:  # no load average on this platform
         return True
-    return load < cores - IDLE_CORE
+
+
+def _running_threads(looks: int = 3) -> int | None:
+    """The threads running on the machine now, the least of ``looks`` reads of /proc/loadavg
+    (a shell started for an instant is not a busy core); None where there is no such file."""
+    try:
+        counts = [int(Path("/proc/loadavg").read_text().split()[3].split("/")[0]) for _ in range(looks)]
+    except (OSError, IndexError, ValueError):
+        return None
+    return min(counts)
 
 
 def _side_by_side(problem: Problem, placed: list, seed: int, movable: list[int] | None,
