@@ -1530,6 +1530,28 @@ def test_the_meter_estimates_verdicts_from_the_verdicts_once_one_is_timed():
     assert meter.rate == pytest.approx(30.0 / 100**SETTLE_EXPONENT)
 
 
+def test_a_verdicts_second_settle_runs_beside_it_only_on_an_idle_core(monkeypatch):
+    """One core, or every core busy with a running thread (this one among them): one after
+    the other. A core left idle: side by side."""
+    import os
+
+    import optimizer.search.physics as physics
+
+    if not hasattr(os, "sched_getaffinity"):
+        pytest.skip("no CPU affinity on this platform")
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+    for running, spare in ((1, True), (2, False), (3, False)):
+        monkeypatch.setattr(physics, "_running_threads", lambda running=running: running)
+        assert physics._spare_core() is spare
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    monkeypatch.setattr(physics, "_running_threads", lambda: 1)
+    assert physics._spare_core() is False
+    # Where the file is there, it counts this thread at least.
+    if os.path.exists("/proc/loadavg"):
+        monkeypatch.undo()
+        assert physics._running_threads() >= 1
+
+
 def test_a_verdict_side_by_side_answers_as_one_in_turn(tiny, monkeypatch):
     """The verdict's two settles run at once on two cores (``physics._side_by_side``): the same
     answer, pose for pose, as one after the other, on a layout that stands and on one that
