@@ -281,7 +281,7 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
     """
     seed = int(rng.integers(2**31))
     t0 = problem.now()
-    ran = [0]  # settles begun and not called off
+    ran = [0]  # the settles the verdict's time is shared among (two side by side, called off or not)
     try:
         if side_by_side if side_by_side is not None else _spare_core():
             return _side_by_side(problem, placed, seed, movable, ran)
