@@ -287,13 +287,10 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
             return _side_by_side(problem, placed, seed, movable, ran)
         ran[0] = 1
         result = _settled_by(problem, placed, seed=seed, movable=movable)
-        if result.stable or result.diverged:
-            # Where the engine diverged, another kick may let it answer.
-            ran[0] = 2
-            again = _settled_by(problem, placed, seed=VERDICT_SEED, movable=movable)
-            if not again.stable or result.diverged:
-                return again
-        return result
+        if not _needs_second(result):
+            return result
+        ran[0] = 2
+        return _answer(result, _settled_by(problem, placed, seed=VERDICT_SEED, movable=movable))
     finally:
         # A stopped verdict's time too, as the least it costs (as ``whole_settle``).
         problem.meter.record(len(placed), (problem.now() - t0) / max(1, ran[0]), problem.required,
@@ -356,14 +353,24 @@ def _side_by_side(problem: Problem, placed: list, seed: int, movable: list[int] 
             first_failed.set()
             second.exception()  # ended, whatever it raised
             raise
-        if not (result.stable or result.diverged):
+        if not _needs_second(result):
             first_failed.set()
             second.exception()
             return result
         again = second.result()
-    if not again.stable or result.diverged:
-        return again
-    return result
+    return _answer(result, again)
+
+
+def _needs_second(result: SettleResult) -> bool:
+    """Whether the random kick's settle leaves the verdict to the second: it stood, or the
+    engine diverged (another kick may let it answer)."""
+    return bool(result.stable or result.diverged)
+
+
+def _answer(result: SettleResult, again: SettleResult) -> SettleResult:
+    """The verdict of the two kicks, the second run because the first stood or diverged: the
+    second's where it fails or the first diverged, else the first's (the poses adopted)."""
+    return again if not again.stable or result.diverged else result
 
 
 def judged(build: Build) -> list[int] | None:

@@ -60,10 +60,10 @@ class SettleMeter:
     kept: the confirming settles come at the end, and a machine busy once may be busy again.
 
     The confirming settles are verdicts (``search.physics.verdict``: two settles, side by side
-    where there are two cores), and a verdict is timed as two settles of half its time. Once
-    one is, the verdicts' rate is the one used: a lone settle (a beam restart's ``stands``)
-    takes as long as a verdict whose two settles run at once on two free cores, and counted as
-    half a verdict it kept the covering moves on ``big-shake`` from 39 s the run had left.
+    where a core is idle), and a verdict is timed as two settles of half its time. Once one
+    is, the verdicts' rate is the one used: a lone settle (a beam restart's ``stands``) takes
+    as long as a whole verdict side by side, and counted as half of one it held back the
+    covering moves on ``big-shake`` seed 1 with 40 s of the run left.
 
     Attributes
     ----------
