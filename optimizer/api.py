@@ -64,6 +64,7 @@ from geometry.porosity import exact_filled_volume
 from geometry.scene import Scene
 from settle import Stopped
 
+from .search import cover as search_cover
 from .search.anneal import COVER_FACTOR, Annealing
 from .search.beam import BeamSearch
 from .search.build import GROUND, Build
@@ -1224,22 +1225,71 @@ def _trim_words(phase: dict[str, Any] | None, kept: bool) -> str:
             f"{phase['porosity_percent']:.2f}%{fell}")
 
 
+#: Rounds of covering moves at most (:func:`cover_repair`); None: while the time lasts and each
+#: round makes all its moves and is kept.
+COVER_ROUNDS: int | None = None
+
+
 def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int, end: float
                  ) -> tuple[_Attempt, dict[str, Any] | None]:
     """The attempt with free blocks moved to bare areas (``search.cover``), if it misses a coverage aim.
 
     Only a layout that reaches its count and porosity and stands is
     repaired, until the moves must end for the settle that confirms them
-    (:func:`moves_until`). The moved layout is
-    settled again (:func:`physics.verdict`, within the settle's reserve
-    before ``end``), and written as moved, each block where it came to rest
-    when let go among its neighbours; if it does not stand, the layout with
-    the last move undone is settled the same way, once; if that does not
-    stand either, or there is no time to settle it, the attempt is returned
-    as it was. Returns the
-    attempt to keep (a new one; ``attempt`` keeps its own layout) and the
-    ``cover`` phase (None where nothing was tried).
+    (:func:`moves_until`). The moves come in rounds of at most
+    ``search.cover.MOVES``, each round confirmed on its own
+    (:func:`_cover_round`); a round that made all its moves, was kept and
+    still misses an aim is followed by another from the layout it kept, while
+    the time lasts. (One round only until 2026-12-07: twelve moves is what
+    ``mini`` needs, and ``cube`` and ``full`` stopped at twelve with a minute
+    or more of their limits left, 18-19 and 22-23 % bare.) Returns the attempt
+    to keep (a new one; ``attempt`` keeps its own layout) and the ``cover``
+    phase (None where nothing was tried), whose figures are the rounds' together.
     """
+    clock = problem.clock
+    t0 = clock()
+    kept, phase = _cover_round(problem, attempt, rng, number, end, attempt)
+    if phase is None:
+        return attempt, None
+    phase["rounds"] = 1
+    last = phase
+    while _another_round(kept, attempt, last, phase["rounds"]):
+        before = kept
+        kept, last = _cover_round(problem, before, rng, number, end, attempt)
+        if last is None:  # no time for another round
+            kept = before
+            break
+        phase["rounds"] += 1
+        phase["tried"] += last["tried"]
+        if kept is before:  # its moves were not kept: the layout is the one before them
+            break
+        phase["moved"] += last["moved"]
+        phase["undone"] += last["undone"]
+        phase["adopted"] = bool(phase.get("adopted") or last.get("adopted"))
+        phase.update(blocks=last["blocks"], porosity_percent=last["porosity_percent"],
+                     bare_share_percent=last["bare_share_percent"])
+    phase["seconds"] = clock() - t0
+    return kept, phase
+
+
+def _another_round(kept: _Attempt, before: _Attempt, last: dict[str, Any], rounds: int) -> bool:
+    """Whether the covering moves go on from ``kept`` after a round (``last``, its phase) of
+    ``rounds``: it was kept (``kept`` is not ``before``), it made every move a round may, and
+    the layout still misses a coverage aim."""
+    return (COVER_ROUNDS is None or rounds < COVER_ROUNDS) and kept is not before \
+        and last["moved"] + last["undone"] >= search_cover.MOVES \
+        and (kept.coverage is None or kept.coverage.aims_met() < 2)
+
+
+def _cover_round(problem: Problem, attempt: _Attempt, rng: np.random.Generator, number: int, end: float,
+                 unmoved: _Attempt) -> tuple[_Attempt, dict[str, Any] | None]:
+    """One round of covering moves on ``attempt`` (at most ``search.cover.MOVES``), as
+    :func:`cover_repair` describes. The moved layout is settled again
+    (:func:`physics.verdict`, within the settle's reserve before ``end``), and written as
+    moved, each block where it came to rest when let go among its neighbours; if it does
+    not stand, the layout with the last move undone is settled the same way, once; if that
+    does not stand either, or there is no time to settle it, the attempt is returned as it
+    was. ``unmoved`` is the attempt before any round moved it."""
     clock, scene = problem.clock, problem.scene
     if attempt.stable is not True:
         return attempt, None
@@ -1261,7 +1311,7 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     kept = attempt
     if stats.moved:
         kept = _settled_again(problem, attempt, moved, rng, end, phase, than=attempt.coverage,
-                              coverage=after, unmoved=attempt.unmoved or attempt)
+                              coverage=after, unmoved=unmoved.unmoved or unmoved)
     if kept is attempt and phase["stood"] is False and stats.moved > 1:
         # Each block moved came to rest when let go among its neighbours, but a move can still
         # fell the whole: the last one is undone, and the layout before it settled the same way
@@ -1270,7 +1320,7 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
         # before the next is weighed, which needs the time.
         fewer, less = history[-2]
         kept = _settled_again(problem, attempt, fewer, rng, end, phase, than=attempt.coverage,
-                              coverage=less, unmoved=attempt.unmoved or attempt)
+                              coverage=less, unmoved=unmoved.unmoved or unmoved)
         if kept is not attempt:
             phase.update(moved=stats.moved - 1, undone=1, blocks=len(fewer),
                          porosity_percent=fewer.porosity.percent, bare_share_percent=less.bare_share_percent)

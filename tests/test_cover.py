@@ -273,6 +273,7 @@ def test_moves_that_fail_their_settle_are_taken_where_it_left_them_if_they_stand
     import optimizer.api as api
 
     scene, build = mini_reference
+    monkeypatch.setattr(api, "COVER_ROUNDS", 1)  # one round's own logic
     monkeypatch.setattr(cover, "MOVES", 1)
     calls = _failing_once(monkeypatch, api)
     pr = problem(scene, seconds=120.0)
@@ -300,6 +301,7 @@ def test_where_the_moved_layout_falls_the_last_move_is_undone_and_the_rest_kept_
     import optimizer.api as api
 
     scene, build = mini_reference
+    monkeypatch.setattr(api, "COVER_ROUNDS", 1)  # one round's own logic
     monkeypatch.setattr(cover, "MOVES", 2)
     real, calls = api.verdict, []
 
@@ -334,6 +336,62 @@ def test_where_the_moved_layout_falls_the_last_move_is_undone_and_the_rest_kept_
     assert abs(kept.build.porosity.percent - scene.target_porosity) <= 1.0
     report = check_layout(scene, kept.build.placed())
     assert not report.collisions and not report.out_of_tolerance
+
+
+def test_a_round_that_makes_all_its_moves_and_is_kept_is_followed_by_another(mini_reference, monkeypatch):
+    """Rounds of one move each (``MOVES`` 1), two at most: the second starts from the layout
+    the first kept, each is settled and kept, and the phase counts both. (A round of at most
+    twelve moves was all until 2026-12-07: ``cube`` and ``full`` stopped at twelve with a minute
+    or more of their limits left.)"""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 1)
+    monkeypatch.setattr(api, "COVER_ROUNDS", 2)
+    rounds, real = [], api._cover_round
+
+    def recorded(problem_, attempt_, *args):
+        out = real(problem_, attempt_, *args)
+        rounds.append((attempt_, out[0]))
+        return out
+
+    monkeypatch.setattr(api, "_cover_round", recorded)
+    pr = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    kept, phase = api.cover_repair(pr, attempt, np.random.default_rng(1), 1, pr.deadline + 30.0)
+    assert len(rounds) == 2 and phase["rounds"] == 2, str(phase)
+    (first_from, first_kept), (second_from, second_kept) = rounds
+    assert first_from is attempt and first_kept is not attempt
+    assert second_from is first_kept and second_kept is kept
+    assert phase["moved"] == 2 and phase["stood"] is True
+    assert kept.coverage.better_than(first_kept.coverage) and first_kept.coverage.better_than(attempt.coverage)
+    assert phase["bare_share_percent"] == kept.coverage.bare_share_percent
+    report = check_layout(scene, kept.build.placed())
+    assert not report.collisions and not report.out_of_tolerance
+    assert abs(kept.build.porosity.percent - scene.target_porosity) <= 1.0
+
+
+def test_another_round_only_after_one_that_made_every_move_and_was_kept(mini_reference, monkeypatch):
+    """A round followed by another: only one that was kept, made every move a round may (a round
+    with moves to spare found no more), on a layout still missing a coverage aim, and within
+    ``COVER_ROUNDS``."""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 12)
+    before = api._Attempt(build, [], {}, {"stable": True}, True)
+    bare = coverage(scene, build.placed())
+    covered = replace(bare, bare_share_percent=0.0, max_bare_m=0.0)
+    assert bare.aims_met() < 2 and covered.aims_met() == 2
+    kept = replace(before, coverage=bare)
+    assert api._another_round(kept, before, {"moved": 12, "undone": 0}, 1)
+    assert api._another_round(kept, before, {"moved": 11, "undone": 1}, 1)
+    assert not api._another_round(kept, before, {"moved": 11, "undone": 0}, 1)
+    assert not api._another_round(before, before, {"moved": 12, "undone": 0}, 1)
+    assert not api._another_round(replace(before, coverage=covered), before, {"moved": 12, "undone": 0}, 1)
+    monkeypatch.setattr(api, "COVER_ROUNDS", 3)
+    assert api._another_round(kept, before, {"moved": 12, "undone": 0}, 2)
+    assert not api._another_round(kept, before, {"moved": 12, "undone": 0}, 3)
 
 
 def test_moves_taken_where_the_settle_left_them_are_measured_up_to_the_end_not_the_search_deadline(
@@ -458,6 +516,7 @@ def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypa
     import optimizer.api as api
 
     scene, build = mini_reference
+    monkeypatch.setattr(api, "COVER_ROUNDS", 1)  # one round's own logic
     monkeypatch.setattr(cover, "MOVES", 1)
     _failing_once(monkeypatch, api)
     monkeypatch.setattr(api, "settled_layout", lambda problem, moved, result, rng: (
