@@ -364,7 +364,8 @@ def test_a_round_that_makes_all_its_moves_and_is_kept_is_followed_by_another(min
     assert first_from is attempt and first_kept is not attempt
     assert second_from is first_kept and second_kept is kept
     assert phase["moved"] == 2 and phase["stood"] is True
-    assert kept.coverage.better_than(first_kept.coverage) and first_kept.coverage.better_than(attempt.coverage)
+    assert kept.coverage.better_than(first_kept.coverage)
+    assert first_kept.coverage.better_than(attempt.coverage)
     assert phase["bare_share_percent"] == kept.coverage.bare_share_percent
     report = check_layout(scene, kept.build.placed())
     assert not report.collisions and not report.out_of_tolerance
