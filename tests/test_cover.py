@@ -273,7 +273,6 @@ def test_moves_that_fail_their_settle_are_taken_where_it_left_them_if_they_stand
     import optimizer.api as api
 
     scene, build = mini_reference
-    monkeypatch.setattr(api, "COVER_ROUNDS", 1)  # one round's own logic
     monkeypatch.setattr(cover, "MOVES", 1)
     calls = _failing_once(monkeypatch, api)
     pr = problem(scene, seconds=120.0)
@@ -301,7 +300,6 @@ def test_where_the_moved_layout_falls_the_last_move_is_undone_and_the_rest_kept_
     import optimizer.api as api
 
     scene, build = mini_reference
-    monkeypatch.setattr(api, "COVER_ROUNDS", 1)  # one round's own logic
     monkeypatch.setattr(cover, "MOVES", 2)
     real, calls = api.verdict, []
 
@@ -347,7 +345,6 @@ def test_a_round_that_makes_all_its_moves_and_is_kept_is_followed_by_another(min
 
     scene, build = mini_reference
     monkeypatch.setattr(cover, "MOVES", 1)
-    monkeypatch.setattr(api, "COVER_ROUNDS", 2)
     rounds, real = [], api._cover_round
 
     def recorded(problem_, attempt_, *args):
@@ -358,11 +355,12 @@ def test_a_round_that_makes_all_its_moves_and_is_kept_is_followed_by_another(min
     monkeypatch.setattr(api, "_cover_round", recorded)
     pr = problem(scene, seconds=120.0)
     attempt = api._Attempt(build, [], {}, {"stable": True}, True)
-    kept, phase = api.cover_repair(pr, attempt, np.random.default_rng(1), 1, pr.deadline + 30.0)
+    kept, phase = api.cover_repair(pr, attempt, np.random.default_rng(1), 1, pr.deadline + 30.0, rounds=2)
     assert len(rounds) == 2 and phase["rounds"] == 2, str(phase)
     (first_from, first_kept), (second_from, second_kept) = rounds
     assert first_from is attempt and first_kept is not attempt
-    assert second_from is first_kept and second_kept is kept
+    assert second_from.build is first_kept.build and second_kept.build is kept.build
+    assert kept.unmoved is attempt  # the layout before any round, for the attempts phase
     assert phase["moved"] == 2 and phase["stood"] is True
     assert kept.coverage.better_than(first_kept.coverage)
     assert first_kept.coverage.better_than(attempt.coverage)
@@ -373,9 +371,8 @@ def test_a_round_that_makes_all_its_moves_and_is_kept_is_followed_by_another(min
 
 
 def test_another_round_only_after_one_that_made_every_move_and_was_kept(mini_reference, monkeypatch):
-    """A round followed by another: only one that was kept, made every move a round may (a round
-    with moves to spare found no more), on a layout still missing a coverage aim, and within
-    ``COVER_ROUNDS``."""
+    """A round is followed by another only where it was kept, made every move a round may (a
+    round with moves to spare found no more), and the layout still misses a coverage aim."""
     import optimizer.api as api
 
     scene, build = mini_reference
@@ -385,14 +382,32 @@ def test_another_round_only_after_one_that_made_every_move_and_was_kept(mini_ref
     covered = replace(bare, bare_share_percent=0.0, max_bare_m=0.0)
     assert bare.aims_met() < 2 and covered.aims_met() == 2
     kept = replace(before, coverage=bare)
-    assert api._another_round(kept, before, {"moved": 12, "undone": 0}, 1)
-    assert api._another_round(kept, before, {"moved": 11, "undone": 1}, 1)
-    assert not api._another_round(kept, before, {"moved": 11, "undone": 0}, 1)
-    assert not api._another_round(before, before, {"moved": 12, "undone": 0}, 1)
-    assert not api._another_round(replace(before, coverage=covered), before, {"moved": 12, "undone": 0}, 1)
-    monkeypatch.setattr(api, "COVER_ROUNDS", 3)
-    assert api._another_round(kept, before, {"moved": 12, "undone": 0}, 2)
-    assert not api._another_round(kept, before, {"moved": 12, "undone": 0}, 3)
+    assert api._another_round(kept, before, {"moved": 12, "undone": 0})
+    assert api._another_round(kept, before, {"moved": 11, "undone": 1})
+    assert not api._another_round(kept, before, {"moved": 11, "undone": 0})
+    assert not api._another_round(before, before, {"moved": 12, "undone": 0})
+    assert not api._another_round(replace(before, coverage=covered), before, {"moved": 12, "undone": 0})
+
+
+def test_the_rounds_after_the_first_come_only_at_the_end_of_the_run(mini_reference, monkeypatch):
+    """While attempts are weighed a repair makes one round (its rounds after would take the
+    time the next attempt's own moves need); the run's last repair goes on from the phase that
+    round left, in the same ``cover`` phase, where that round made every move it may."""
+    import optimizer.api as api
+
+    scene, build = mini_reference
+    monkeypatch.setattr(cover, "MOVES", 1)
+    pr = problem(scene, seconds=120.0)
+    attempt = api._Attempt(build, [], {}, {"stable": True}, True)
+    first, phase = api.repair_once(pr, attempt, np.random.default_rng(1), 1, pr.deadline + 30.0)
+    assert phase["rounds"] == 1 and phase["moved"] == 1 and first.more_cover
+    assert first.phases[-1] is phase
+    again, same = api.repair_once(pr, first, np.random.default_rng(2), 1, pr.deadline + 30.0)
+    assert again is first and same is phase and phase["rounds"] == 1  # weighed again: not twice
+    last, same = api.repair_once(pr, first, np.random.default_rng(2), 1, pr.deadline + 30.0, rounds=2)
+    assert same is phase and phase["rounds"] == 2 and phase["moved"] == 2
+    assert last.phases[-1] is phase and last.coverage.better_than(first.coverage)
+    assert phase["bare_share_percent"] == last.coverage.bare_share_percent
 
 
 def test_moves_taken_where_the_settle_left_them_are_measured_up_to_the_end_not_the_search_deadline(
@@ -468,7 +483,7 @@ def test_attempts_are_weighed_as_repaired(mini_reference, monkeypatch, best_afte
         build.copy(), [], {}, {"stable": True}, True, searched=len(build)))
     calls = []
 
-    def repair(problem, attempt, rng, number, end):
+    def repair(problem, attempt, rng, number, end, rounds=1):
         calls.append(number)
         after = best_after if number == 1 else new_after
         if after == 15.0:  # no move made
@@ -517,7 +532,6 @@ def test_moves_whose_gain_the_settle_undid_are_not_kept(mini_reference, monkeypa
     import optimizer.api as api
 
     scene, build = mini_reference
-    monkeypatch.setattr(api, "COVER_ROUNDS", 1)  # one round's own logic
     monkeypatch.setattr(cover, "MOVES", 1)
     _failing_once(monkeypatch, api)
     monkeypatch.setattr(api, "settled_layout", lambda problem, moved, result, rng: (

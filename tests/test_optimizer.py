@@ -1362,7 +1362,7 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
                                       phases=[]))
         return (len(tried_) - 1 if keep else chosen), f"attempt {len(calls)}" + (" kept" if keep else "")
 
-    def repair(problem_, attempt, rng, number, end):
+    def repair(problem_, attempt, rng, number, end, rounds=1):
         events.append(("repair", number))
         moved = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=7.0), seconds=1.0,
                                 phases=attempt.phases)
@@ -1435,7 +1435,7 @@ def test_the_layout_kept_is_repaired_once(monkeypatch):
 
     calls = []
 
-    def repair(problem_, attempt, rng, number, end):
+    def repair(problem_, attempt, rng, number, end, rounds=1):
         calls.append(number)
         return SimpleNamespace(phases=attempt.phases), {"strategy": "cover", "attempt": number}
 
