@@ -36,10 +36,13 @@ The pipeline, each step a pluggable strategy instance:
    kept then still leaves it bare and that attempt's time is left, one more
    (``COVER_ATTEMPTS``, :func:`covered_attempts`); an attempt with rows kept
    is repaired as in 8 at once, before the next is weighed against it;
-8. if the layout kept still leaves the surface bare (and was not repaired in 7), blocks that carry
+8. if the layout kept still leaves the surface bare, blocks that carry
    nothing are moved one by one to where they cover most bare area, within
    the porosity window, and the moves are kept if the layout then stands, or
-   else all but the last if that stands (:func:`cover_repair`).
+   else all but the last if that stands (:func:`cover_repair`): in rounds of
+   twelve moves at most, each settled, while each round is kept, makes all its
+   moves and the time lasts (a layout repaired in 7 made its first round there,
+   and goes on from it).
 
 Validity is never loosened: if the required count cannot be reached, the best
 valid layout found is returned with the count it reached.
@@ -615,7 +618,9 @@ def optimize(
         best, moves = repair_once(problem, best, stream("cover", chosen + 1), chosen + 1, end, rounds=None)
     if moves and moves["moved"] and moves["stood"]:
         n = moves["moved"]
-        undone = " (the last move undone: with it the layout fell)" if moves.get("undone") else ""
+        undone = moves.get("undone", 0)
+        undone = ("" if not undone else " (the last move undone: with it the layout fell)" if undone == 1
+                  else f" ({undone} moves undone, the last of a round each: with them the layout fell)")
         moved = (f"moving {n} {'block that' if n == 1 else 'blocks that'} carried nothing to bare areas "
                  f"took the bare share from {moves['bare_before_percent']:.1f}% to "
                  f"{moves['bare_share_percent']:.1f}%{undone}")
@@ -1245,7 +1250,8 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     if phase is None:
         return attempt, None
     phase["rounds"] = 1
-    kept = replace(kept, more_cover=_another_round(kept, attempt, phase)) if kept is not attempt else kept
+    if kept is not attempt:  # else the attempt as it was (its callers ask whether it is the same)
+        kept = replace(kept, more_cover=_another_round(kept, attempt, phase))
     if rounds is None or rounds > 1:
         kept = more_rounds(problem, kept, phase, rng, number, end, rounds)
     phase["seconds"] = problem.clock() - t0
@@ -1263,23 +1269,26 @@ def more_rounds(problem: Problem, kept: _Attempt, phase: dict[str, Any], rng: np
     they took the time the next attempt's own moves needed (held-out ``brick-rough`` seed 2:
     38.7 % bare, where the attempt with rows, moved, had come to 32.5 %)."""
     t0 = problem.clock()
-    while kept.more_cover and (rounds is None or phase["rounds"] < rounds):
-        before = replace(kept, more_cover=False)
-        kept, last = _cover_round(problem, before, rng, number, end, before)
-        if last is None:  # no time for another round
-            return before
-        phase["rounds"] += 1
-        phase["tried"] += last["tried"]
-        if kept is before:  # its moves were not kept: the layout is the one before them
-            return before
-        phase["moved"] += last["moved"]
-        phase["undone"] += last["undone"]
-        phase["adopted"] = bool(phase.get("adopted") or last.get("adopted"))
-        phase.update(blocks=last["blocks"], porosity_percent=last["porosity_percent"],
-                     bare_share_percent=last["bare_share_percent"])
-        kept = replace(kept, more_cover=_another_round(kept, before, last))
-    phase["seconds"] = phase.get("seconds", 0.0) + problem.clock() - t0
-    return kept
+    try:
+        while kept.more_cover and (rounds is None or phase["rounds"] < rounds):
+            before = replace(kept, more_cover=False)
+            kept, last = _cover_round(problem, before, rng, number, end, before)
+            if last is None:  # no time for another round
+                return before
+            phase["rounds"] += 1
+            phase["tried"] += last["tried"]
+            if kept is before:  # its moves were not kept: the layout is the one before them
+                return before
+            phase["moved"] += last["moved"]
+            phase["undone"] += last["undone"]
+            if last.get("adopted"):
+                phase["adopted"] = True
+            phase.update(blocks=last["blocks"], porosity_percent=last["porosity_percent"],
+                         bare_share_percent=last["bare_share_percent"])
+            kept = replace(kept, more_cover=_another_round(kept, before, last))
+        return kept
+    finally:
+        phase["seconds"] = phase.get("seconds", 0.0) + problem.clock() - t0
 
 
 def _another_round(kept: _Attempt, before: _Attempt, last: dict[str, Any]) -> bool:

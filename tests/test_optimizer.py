@@ -1018,6 +1018,52 @@ def test_optimize_gives_its_result_the_scene_s_budget(tiny):
     assert r.outside_budget_m3 == pytest.approx(outside_budget(tiny))
 
 
+def test_the_runs_last_repair_goes_on_in_rounds_while_the_time_lasts(tiny, monkeypatch):
+    """The covering repair at the end of ``optimize`` is asked for rounds of moves without
+    bound (``rounds=None``: while each makes all its moves and the time lasts); the repairs
+    made while attempts are weighed make one (the test above)."""
+    import optimizer.api as api
+
+    asked = []
+
+    def repair_once(problem_, attempt, rng, number, end, rounds=1):
+        asked.append(rounds)
+        return attempt, None
+
+    monkeypatch.setattr(api, "repair_once", repair_once)
+    monkeypatch.setattr(api, "covered_attempts",
+                        lambda problem_, strategies, tried, chosen, *args: (chosen, None))
+    api.optimize(tiny, seed=1, time_limit=20.0, strategies=[BeamSearch(restarts=1, origins=1)])
+    assert asked == [None]
+
+
+@pytest.mark.parametrize("ending", ["not kept", "no time"])
+def test_a_later_round_that_ends_the_rounds_is_counted_in_the_phase(monkeypatch, ending):
+    """A round after the first that is not kept, or finds no time to be made, ends the rounds:
+    the layout is the one before it, and its time is in the phase's seconds (a round not kept
+    counts in ``rounds`` and ``tried``, not in ``moved``). The round itself is stood in for,
+    on fake seconds: it takes 5 s."""
+    from types import SimpleNamespace
+
+    import optimizer.api as api
+
+    now = [100.0]
+
+    def round_(problem_, attempt, rng, number, end, unmoved):
+        now[0] += 5.0
+        if ending == "no time":
+            return attempt, None
+        return attempt, {"tried": 3, "moved": 12, "undone": 0, "adopted": True}
+
+    monkeypatch.setattr(api, "_cover_round", round_)
+    kept = api._Attempt(None, [], {}, {}, True, more_cover=True)
+    phase = {"rounds": 1, "tried": 10, "moved": 12, "undone": 0, "seconds": 20.0, "stood": True}
+    out = api.more_rounds(SimpleNamespace(clock=lambda: now[0]), kept, phase, None, 1, 200.0)
+    assert out.more_cover is False and out.build is kept.build
+    assert phase["seconds"] == 25.0 and phase["moved"] == 12 and "adopted" not in phase
+    assert (phase["rounds"], phase["tried"]) == ((2, 13) if ending == "not kept" else (1, 10))
+
+
 def test_summary_says_why_a_layout_written_does_not_stand():
     """A verdict that fails on blocks not kept (no time was left to take them out) gets its own line."""
     from optimizer.api import OptimizeResult
@@ -1364,6 +1410,7 @@ def test_the_words_of_the_attempts_with_rows_are_those_of_the_one_kept(monkeypat
 
     def repair(problem_, attempt, rng, number, end, rounds=1):
         events.append(("repair", number))
+        assert rounds == 1, "while attempts are weighed a repair makes one round of moves"
         moved = SimpleNamespace(coverage=SimpleNamespace(bare_share_percent=7.0), seconds=1.0,
                                 phases=attempt.phases)
         return moved, {"strategy": "cover", "attempt": number, "seconds": 0.0}
