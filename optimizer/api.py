@@ -1252,8 +1252,7 @@ def cover_repair(problem: Problem, attempt: _Attempt, rng: np.random.Generator, 
     phase["rounds"] = 1
     if kept is not attempt:  # else the attempt as it was (its callers ask whether it is the same)
         kept = replace(kept, more_cover=_another_round(kept, attempt, phase))
-    if rounds is None or rounds > 1:
-        kept = more_rounds(problem, kept, phase, rng, number, end, rounds)
+    kept = more_rounds(problem, kept, phase, rng, number, end, rounds)
     phase["seconds"] = problem.clock() - t0
     return kept, phase
 
@@ -1361,7 +1360,7 @@ def repair_once(problem: Problem, attempt: _Attempt, rng: np.random.Generator, n
     more and its last round made every move it may, more rounds follow (:func:`more_rounds`)."""
     made = next((p for p in attempt.phases[-1:] if p["strategy"] == "cover"), None)
     if made is not None:
-        if rounds is None or rounds > made.get("rounds", 1):
+        if rounds is None or rounds > made.get("rounds", 1):  # else nothing more to make
             attempt = more_rounds(problem, attempt, made, rng, number, end, rounds)
         return attempt, made
     repaired, phase = cover_repair(problem, attempt, rng, number, end, rounds)

@@ -281,20 +281,19 @@ def verdict(problem: Problem, placed: list, rng: np.random.Generator,
     """
     seed = int(rng.integers(2**31))
     t0 = problem.now()
-    ran = [0]  # the settles the verdict's time is shared among (two side by side, called off or not)
+    ran = 2  # the settles the verdict's time is shared among (two side by side, called off or not)
     try:
         if side_by_side if side_by_side is not None else _spare_core():
-            return _side_by_side(problem, placed, seed, movable, ran)
-        ran[0] = 1
+            return _side_by_side(problem, placed, seed, movable)
+        ran = 1
         result = _settled_by(problem, placed, seed=seed, movable=movable)
         if not _needs_second(result):
             return result
-        ran[0] = 2
+        ran = 2
         return _answer(result, _settled_by(problem, placed, seed=VERDICT_SEED, movable=movable))
     finally:
         # A stopped verdict's time too, as the least it costs (as ``whole_settle``).
-        problem.meter.record(len(placed), (problem.now() - t0) / max(1, ran[0]), problem.required,
-                             verdict=True)
+        problem.meter.record(len(placed), (problem.now() - t0) / ran, problem.required, verdict=True)
 
 
 def _spare_core() -> bool:
@@ -331,19 +330,17 @@ def _running_threads(looks: int = 3) -> int | None:
     return min(counts)
 
 
-def _side_by_side(problem: Problem, placed: list, seed: int, movable: list[int] | None,
-                  ran: list[int]) -> SettleResult:
+def _side_by_side(problem: Problem, placed: list, seed: int, movable: list[int] | None) -> SettleResult:
     """:func:`verdict`'s two settles at once: the ``VERDICT_SEED`` kick in a worker thread while
     the random kick runs here. MuJoCo lets go of Python's lock while it steps, so on two free
     cores a verdict takes about one settle's time, not two: on ``big-shake``'s 266 blocks, 9.8 s
     against 22.5 s in turn (2026-12-07). Where the random kick fails, the other is called off:
     its answer is not needed. Either way the verdict took what a whole one takes side by side,
-    and ``ran[0]`` counts two settles for it: a failed kick's 14.5 s, counted as one settle, had
+    and :func:`verdict` counts two settles for it: a failed kick's 14.5 s, counted as one settle, had
     the next verdict estimated at 29 s, and kept the covering moves on ``big-shake`` from the
     40 s the run had left.
     """
     first_failed = threading.Event()
-    ran[0] = 2
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="shoha-verdict") as pool:
         second = pool.submit(_settled_by, problem, placed, called_off=first_failed.is_set,
                              seed=VERDICT_SEED, movable=movable)
