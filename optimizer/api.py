@@ -89,7 +89,7 @@ from .search.problem import (
     over,
 )
 from .search.shapes import ShapeCache
-from .search.sites import spread_to_count
+from .search.sites import fit_to_toes, spread_to_count
 from .search.toe import ToeRows
 from .search.trim import trim_moves
 
@@ -583,8 +583,11 @@ def optimize(
                                        min(t0 + SPREAD_SHARE * time_limit, problem.deadline))
         if factor != 1.0:
             problem = replace(problem, lattice=problem.lattice.scaled(factor))
+        width = problem.lattice.w
+        problem = fit_to_toes(problem, ShapeCache(scene.block), problem.deadline)
         spread_phase = {"strategy": "spread", "attempt": 1, "seconds": clock() - t0, "factor": factor,
-                        "holds": held, "blocks": 0, "porosity_percent": 100.0}
+                        "holds": held, "blocks": 0, "porosity_percent": 100.0,
+                        "across": problem.lattice.w / width, "anchor": problem.anchor}
 
     def end_for(blocks: int) -> float:
         """When the confirming settles must end, for a layout of ``blocks``: what its final

@@ -232,7 +232,7 @@ def test_toe_rows_take_the_hanging_that_covers_the_toes_strip_best():
     from geometry.coverage import BARE_FRACTION, coverage
     from optimizer.search.hangings import symmetry
     from optimizer.search.shapes import ShapeCache
-    from optimizer.search.toe import INSIDE_SLACK, _outermost, strip_covered
+    from optimizer.search.toe import INSIDE_SLACK, outermost, strip_covered
 
     mini = load_scene("mini")
     pr = problem(mini)
@@ -243,7 +243,7 @@ def test_toe_rows_take_the_hanging_that_covers_the_toes_strip_best():
     every = []
     for fam in pr.families:
         for deg in range(0, 360 // symmetry(mini.block, fam)):
-            c = _outermost(pr, build, shapes.hung(fam, np.radians(deg)), 1.0, y)
+            c = outermost(pr, build, shapes.hung(fam, np.radians(deg)), 1.0, y)
             if c is not None:
                 every.append((strip_covered(mini, shapes.hung(fam, np.radians(deg)), c, 1.0), c.inside))
     most = max(inside for _, inside in every)
@@ -595,6 +595,57 @@ def test_the_pattern_is_spread_on_a_tall_mound_as_far_as_it_still_holds_the_marg
     assert sites.spread_to_count(p, shapes, p.now() - 1.0) == (1.0, None)
     own = problem(tiny)
     assert sites.spread_to_count(own, ShapeCache(tiny.block), own.now() + 60) == (1.0, None)
+
+
+def test_the_pattern_fitted_to_the_toes_stands_a_column_where_a_block_rests_outermost_at_each(tall, tiny):
+    """``fit_to_toes`` changes the spacing across the crest so that, from the anchor, a column of
+    the pattern's first hanging stands at each side where that hanging rests outermost inside
+    the zone: the first pass laid from the anchor rests a block there, at both toes. Where no
+    whole number of columns fits within ``TOE_FIT`` (``mini``'s section, 4.84 spacings), or no
+    time is left, the problem is as it was."""
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.toe import outermost
+
+    p, shapes = problem(tall), ShapeCache(tall.block)
+    fitted = sites.fit_to_toes(p, shapes, float("inf"))
+    lat = fitted.lattice
+    assert fitted.anchor is not None and lat.w != p.lattice.w
+    assert abs(lat.w / p.lattice.w - 1.0) <= sites.TOE_FIT
+    _, (y0, y1) = sites.search_window(tall)
+    shape = shapes.hung(lat.family_a, lat.yaw_a)
+    ends = [float(outermost(p, Build(tall), shape, side, 0.5 * (y0 + y1)).pose.position[0])
+            for side in (1.0, -1.0)]
+    laid = sites.pattern_pass(replace(fitted, required=10_000), shapes, Build(tall), (fitted.anchor, 0.0))
+    xs = np.array([pose.position[0] for _, _, pose in laid.placed()])
+    on_ground = np.array([pose.position[2] for _, _, pose in laid.placed()]) < 0.6 * tall.block.height
+    for end in ends:
+        assert np.min(np.abs(xs[on_ground] - end)) < 0.01, (end, np.sort(xs[on_ground])[[0, -1]])
+
+    own = problem(tiny)
+    assert sites.fit_to_toes(own, ShapeCache(tiny.block), float("inf")) == own
+    assert sites.fit_to_toes(p, shapes, p.now() - 1.0) == p
+
+
+def test_origins_from_the_anchor_are_ranked_first_among_those_whose_pass_places_as_many(tall):
+    """With an anchor, ``rank_origins`` tries origins from it and puts the first of them ahead
+    of every origin whose quick pass places no more of the count; without one it ranks by the
+    volume inside alone, and tries none from it."""
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+
+    p, shapes = problem(tall), ShapeCache(tall.block)
+    fitted = sites.fit_to_toes(p, shapes, float("inf"))
+    ranked = sites.rank_origins(fitted, shapes, np.random.default_rng(1), Build(tall), 3, float("inf"), 1, 4)
+    first = next(i for i, o in enumerate(ranked) if o[0] == fitted.anchor)
+
+    def placed(o):
+        return min(len(sites.pattern_pass(fitted, shapes, Build(tall), o)), fitted.required)
+
+    assert all(placed(o) > placed(ranked[first]) for o in ranked[:first])
+    assert placed(ranked[first]) == fitted.required
+    plain = sites.rank_origins(p, shapes, np.random.default_rng(1), Build(tall), 3, float("inf"), 1, 4)
+    assert all(o[0] != fitted.anchor for o in plain)
 
 
 def test_the_spread_choice_lays_no_pass_past_the_count_with_its_margin(tall, monkeypatch):

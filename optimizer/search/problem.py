@@ -131,6 +131,10 @@ class Problem:
         slow step does the same work; only a deadline that binds cuts it short. None: the
         time left. A problem given a short deadline of its own for a step inside the run (the
         confirming settle's repair, ``physics._repaired``) clears it.
+    anchor : float, optional
+        An origin across the crest (x) that stands a column of the pattern's first hanging
+        where that hanging rests outermost at each toe (:func:`sites.fit_to_toes`); the
+        origins ranked for the pattern include some from it. None: no such origin.
     """
 
     scene: Scene
@@ -144,6 +148,7 @@ class Problem:
     meter: SettleMeter = field(default_factory=SettleMeter, compare=False)
     settle_until: float | None = None
     span: float | None = None
+    anchor: float | None = None
 
     def now(self) -> float:
         return self.clock()

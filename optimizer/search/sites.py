@@ -30,7 +30,10 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
 
     First ``probes`` origins, (0, 0) and seeded random ones over one lattice cell;
     a build with kept blocks adds first the origins that lay the pattern through
-    them (:func:`kept_origins`). Then ``scans`` line scans, taken in turn along
+    them (:func:`kept_origins`), and a problem with an anchor (``Problem.anchor``,
+    :func:`fit_to_toes`) the :data:`ANCHORED` origins from it, after (0, 0). With an
+    anchor, the pass that places more of the count ranks first, then an origin from the
+    anchor, then the volume (:func:`anchored_first`). Then ``scans`` line scans, taken in turn along
     the crest (y) and across it (x), each through the best origin so far: ``n``
     origins along the crest, or ``n / 2`` across it, spaced evenly over one
     lattice period with a seeded offset. The count a pattern places is a step
@@ -49,9 +52,9 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
     """
     lat = problem.lattice
     period = np.array([lat.w, lat.p])
-    trials = kept_origins(problem, start, stop=stop) + [(0.0, 0.0)] + [
+    trials = kept_origins(problem, start, stop=stop) + [(0.0, 0.0)] + anchored_origins(problem) + [
         (float(rng.uniform(0, lat.w)), float(rng.uniform(0, lat.p))) for _ in range(probes - 1)]
-    scored: list[tuple[float, int, tuple[float, float]]] = []
+    scored: list[tuple] = []  # (*anchored_first, -volume, trial, origin)
 
     def trial(origin: tuple[float, float]) -> None:
         build = pattern_pass(problem, shapes, start, origin, stop, laid)
@@ -59,14 +62,15 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
         if counts is not None and whole:
             counts[origin] = len(build)
         if not scored or whole:
-            scored.append((-build.inside_volume, len(scored), origin))
+            first = anchored_first(problem, build, origin)
+            scored.append((*first, -build.inside_volume, len(scored), origin))
 
     for origin in trials:
         if scored and problem.now() > stop:
             break
         trial(origin)
     for scan in range(scans):
-        best = np.array(min(scored)[2])
+        best = np.array(min(scored)[-1])
         axis = 1 - scan % 2  # along the crest first: its steps are the narrower
         m = n if axis == 1 else max(2, n // 2)  # the steps across are twice as wide
         offset = rng.uniform(0.0, 1.0)
@@ -76,7 +80,74 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
             best[axis] = (i + offset) / m * period[axis]
             trial((float(best[0]), float(best[1])))
     scored.sort()
-    return [o for _, _, o in scored]
+    return [s[-1] for s in scored]
+
+
+#: How far the pattern's spacing across the crest may be changed so that its columns stand at
+#: both toes (:func:`fit_to_toes`), as a share of it.
+TOE_FIT = 0.03
+#: Origins from the anchor (:attr:`Problem.anchor`) among the trials that rank origins, evenly
+#: along the crest over one period.
+ANCHORED = 4
+
+
+def anchored_origins(problem: Problem) -> list[tuple[float, float]]:
+    """The origins from ``problem.anchor`` ranked with the rest, or none where it has none."""
+    if problem.anchor is None:
+        return []
+    return [(problem.anchor, i / ANCHORED * problem.lattice.p) for i in range(ANCHORED)]
+
+
+def anchored_first(problem: Problem, build: Build, origin: tuple[float, float]) -> tuple[int, ...]:
+    """The first keys of an origin's rank where the problem has an anchor: the pass that places
+    more of the count first, then an origin from the anchor; none where it has no anchor.
+
+    By volume alone the anchor's origins come after others that hold a little more inside and
+    leave the toes bare: on ``big-shake`` seed 1 the beam was laid from x = 0.51, where the
+    anchor puts the columns at x = 0.00 (stop 80).
+    """
+    if problem.anchor is None:
+        return ()
+    return -min(len(build), problem.required), int(origin[0] != problem.anchor)
+
+
+def fit_to_toes(problem: Problem, shapes: ShapeCache, stop: float) -> Problem:
+    """``problem`` with its pattern fitted across the crest to the mound's toes, where it fits.
+
+    The pattern's columns stand ``w`` apart across the crest. A translation moves the outermost
+    column at one toe out and the one at the other in, so that the two gaps between them and
+    where a block can rest outermost add up to about one spacing whatever the origin: on
+    ``big-shake`` the toes of every layout were bare (docs/coverage-study.md, stop 79). Here
+    the first hanging of the pattern is lowered onto the empty foundation at mid-length as far
+    out towards each side as it rests inside the zone (:func:`toe.outermost`), and the spacing
+    is changed to the nearest that puts a whole number of columns between the two places,
+    where that is within :data:`TOE_FIT` of it; ``anchor`` is then the origin across the crest
+    that stands a column at each. The spacing along the crest and the later passes are as they
+    were. Unchanged where no such spacing is that near, or ``stop`` (``problem.now()``) comes
+    first.
+    """
+    from .toe import outermost  # toe rows build on the sites; only this reaches back
+
+    lat = problem.lattice
+    scene = problem.scene
+    shape = shapes.hung(lat.family_a, lat.yaw_a)
+    empty = Build(scene)
+    _, (y0, y1) = search_window(scene)
+    y = 0.5 * (y0 + y1)
+    found = []
+    for side in (1.0, -1.0):
+        if problem.now() > stop:
+            return problem
+        c = outermost(problem, empty, shape, side, y)
+        if c is None:
+            return problem
+        found.append(float(c.pose.position[0]))
+    span = found[0] - found[1]
+    columns = round(span / lat.w)
+    if columns < 1 or abs(span / columns / lat.w - 1.0) > TOE_FIT:
+        return problem
+    fitted = replace(lat, w=span / columns)
+    return replace(problem, lattice=fitted, anchor=found[1])
 
 
 def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins: list[tuple[float, float]],

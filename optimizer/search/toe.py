@@ -157,7 +157,7 @@ class ToeRows(Strategy):
 
         def measured(fam: str, yaw: float) -> tuple[float, float, float, str, float] | None:
             shape = shapes.hung(fam, yaw)
-            c = _outermost(problem, build, shape, side, y)
+            c = outermost(problem, build, shape, side, y)
             if c is None:
                 return None
             dist = float(distance_to_block(toe, block, c.pose)[0])
@@ -230,7 +230,7 @@ class ToeRows(Strategy):
             for at in np.arange(y, min(y + 0.5 * width, y_end) + 0.5 * step, step):
                 if problem.time_left() <= 0:
                     break
-                here = _outermost(problem, build, shape, side, float(at))
+                here = outermost(problem, build, shape, side, float(at))
                 if here is not None and GROUND in here.support and (
                         c is None or side * here.pose.position[0] > side * c.pose.position[0] + step):
                     c = here
@@ -249,7 +249,7 @@ class ToeRows(Strategy):
         return placed
 
 
-def _outermost(problem: Problem, build: Build, shape: Shape, side: float, y: float
+def outermost(problem: Problem, build: Build, shape: Shape, side: float, y: float
                ) -> Candidate | None:
     """The block lowered at ``y`` as far out towards the ``side`` toe as it rests inside the zone."""
     h = problem.scene.block.height
