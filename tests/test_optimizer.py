@@ -746,6 +746,39 @@ def test_the_refill_sweeps_first_where_the_confirming_settle_took_blocks_out(tin
     assert any(p["strategy"] == "refill" for p in attempt.phases)
 
 
+def test_a_refill_is_tried_where_the_time_left_holds_one_more_confirmation_and_a_quarter(tiny, monkeypatch):
+    """A confirming settle that takes blocks out is followed by a refill where the time left
+    before the confirmations' end holds the refill's own confirmation, taken as long as the last
+    one with a quarter to spare: the confirmation is stopped at its end anyway. Here the
+    confirmations are stand-ins on a clock that moves only when they run: each takes 10 s, and
+    15 s are left after the first. (With twice the last confirmation kept free, ``big-shake`` seed
+    2 ended at 267 of 269 with 56 s of its 134.5 s unused, stop 80; so did seed 1 at f086e50.)"""
+    import optimizer.api as api
+    from optimizer.search.fill import PocketFill
+    from optimizer.search.physics import Confirmation, raised_check
+
+    now = [0.0]
+    pr = replace(problem(tiny), required=5, clock=lambda: now[0], deadline=1e9)
+    calls: list[int] = []
+
+    def confirm(problem_, build, rng, origin=None, end=None, whole=False):
+        calls.append(len(build))
+        if len(calls) == 1:  # the search's layout: its last block does not stand
+            build = build.copy()
+            build.remove(build.order[-1])
+        now[0] += 10.0
+        return build, Confirmation(True, 0.0, 0.0, [], 1, 0, 0, 10.0)
+
+    monkeypatch.setattr(api, "confirm", confirm)
+    strategies = [BeamSearch(restarts=1, origins=3), PocketFill(accept=raised_check, draws=60, checks=10)]
+    attempt = _attempt(pr, strategies, tiny, None, np.random.default_rng(1), True, 25.0, 1)
+    assert calls[0] == pr.required, "the search must reach its count for the test to mean it"
+    refills = [p for p in attempt.phases if p["strategy"] == "refill"]
+    assert refills and refills[0]["added"] == 1, attempt.phases
+    assert len(attempt.build) == pr.required and calls == [pr.required, pr.required]
+    assert now[0] <= 25.0 + 10.0  # its confirmation, the second, began before the end
+
+
 @pytest.mark.parametrize("stands, searches", [(True, 1), (False, 3)])
 def test_beam_restarts_only_until_a_full_layout_stands(tiny, stands, searches):
     """The next origin is searched only while no full layout stands: results, not the clock,
