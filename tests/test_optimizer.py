@@ -1529,6 +1529,52 @@ def test_the_layout_kept_is_repaired_once(monkeypatch):
     assert len(plain.phases) == 3  # one list: the attempt's phases are the repaired one's
 
 
+@pytest.mark.parametrize("left, adopted", [(25.0, True), (19.0, False)])
+def test_a_failed_settle_is_taken_where_it_left_the_blocks_where_two_verdicts_fit(tiny, monkeypatch, left,
+                                                                                     adopted):
+    """A confirmation whose first verdict fails takes the layout where that settle left it, and
+    judges it, wherever the time left after the verdict holds two more verdicts and a second,
+    as a repair round needs: not only where it holds three. The verdicts are stand-ins here,
+    each 10 s on a clock that moves only with them; the layout as settled stands. With 25 s
+    left it is taken so, every block kept; with 19 s there is no time for it, nor for a repair,
+    and what the verdict failed is taken out and what is left judged. (With three verdicts
+    needed, ``big-shake`` seed 2 run beside another lost 41 and 69 of 269 blocks to repairs,
+    where the layout as settled stood with 267: stop 80.)"""
+    from types import SimpleNamespace
+
+    import optimizer.search.physics as physics
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import pattern_pass
+
+    now = [0.0]
+    pr = replace(problem(tiny), required=6, clock=lambda: now[0], deadline=1e9)
+    build = pattern_pass(pr, ShapeCache(tiny.block), Build(tiny), (0.0, 0.0))
+    assert len(build) == 6
+    last = build.order[-1]
+    verdicts = []
+
+    def verdict(problem_, placed, rng, movable=None, side_by_side=None):
+        now[0] += 10.0
+        verdicts.append(len(placed))
+        fails = len(verdicts) == 1
+        return SimpleNamespace(stable=not fails, unstable_ids=[last] if fails else [], diverged=False,
+                               max_displacement_m=0.0, max_rotation_deg=0.0)
+
+    def settled_layout(problem_, b, result, rng):
+        now[0] += 10.0
+        return b, SimpleNamespace(stable=True, unstable_ids=[], diverged=False, max_displacement_m=0.0,
+                                  max_rotation_deg=0.0)
+
+    monkeypatch.setattr(physics, "verdict", verdict)
+    monkeypatch.setattr(physics, "settled_layout", settled_layout)
+    out, conf = physics._confirm(pr, build, np.random.default_rng(0), None, 10.0 + 10.0 + left, False, [])
+    assert conf.stable
+    if adopted:
+        assert conf.adopted >= 1 and conf.repaired == 0 and len(out) == 6
+    else:
+        assert conf.adopted == 0 and conf.repaired >= 1 and len(out) < 6
+
+
 def test_the_confirming_settles_get_the_time_that_settles_timed_in_the_run_need(tiny, monkeypatch):
     """Settles of the whole layout far slower than the estimate (a tall mound, a busy machine):
     the first one timed in the run (the beam's verdict on its layout) brings the search's
