@@ -89,7 +89,7 @@ from .search.problem import (
     over,
 )
 from .search.shapes import ShapeCache
-from .search.sites import fit_to_toes, spread_to_count
+from .search.sites import SPREAD_MARGIN, fit_to_toes, spread_to_count
 from .search.toe import ToeRows
 from .search.trim import trim_moves
 
@@ -588,7 +588,9 @@ def optimize(
         if factor != 1.0:
             problem = replace(problem, lattice=problem.lattice.scaled(factor))
         width = problem.lattice.w
-        problem = fit_to_toes(problem, ShapeCache(scene.block), problem.deadline)
+        # Wider columns only where the pattern was seen to hold the count with the spread's margin.
+        margin = held is not None and held >= math.ceil(problem.required * (1.0 + SPREAD_MARGIN))
+        problem = fit_to_toes(problem, ShapeCache(scene.block), problem.deadline, stretch=margin)
         spread_phase = {"strategy": "spread", "attempt": 1, "seconds": clock() - t0, "factor": factor,
                         "holds": held, "blocks": 0, "porosity_percent": 100.0,
                         "across": problem.lattice.w / width, "anchor": problem.anchor}

@@ -622,6 +622,9 @@ def test_the_pattern_fitted_to_the_toes_stands_a_column_where_a_block_rests_oute
     for end in ends:
         assert np.min(np.abs(xs[on_ground] - end)) < 0.01, (end, np.sort(xs[on_ground])[[0, -1]])
 
+    # Unspread, the tall mound's columns are fitted wider; not where a wider one is not allowed.
+    assert lat.w > p.lattice.w
+    assert sites.fit_to_toes(p, shapes, float("inf"), stretch=False) == p
     own = problem(tiny)
     assert sites.fit_to_toes(own, ShapeCache(tiny.block), float("inf")) == own
     assert sites.fit_to_toes(p, shapes, p.now() - 1.0) == p
