@@ -259,6 +259,9 @@ def main() -> None:
                         help="Optimizations run at once, each on one core (default: 2, or 1 on one core).")
     parser.add_argument("--held-out", action="store_true",
                         help="Run the scenes held out of tuning (benchmarks/scenes/held-out/) instead.")
+    parser.add_argument("--stem", default=None,
+                        help="Write results/STEM.* instead of the tables the README quotes: a comparison "
+                             "of two commits on one day's machine (--methods new old --old-commit C).")
     args = parser.parse_args()
     if args.held_out:
         scenes = args.scenes or sorted(p.stem for p in HELD_OUT_DIR.glob("*.toml"))
@@ -266,6 +269,7 @@ def main() -> None:
     else:
         scenes = args.scenes or list(SCENES)
         stem = "generality"
+    stem = args.stem or stem
     write_turned_mesh(BENCH / "scenes" / "shake-turned.stl")
     old = old_tree(args.old_commit) if "old" in args.methods else None
     run = Run(stem, {"scenes": scenes, "seeds": args.seeds,
