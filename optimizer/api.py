@@ -89,7 +89,7 @@ from .search.problem import (
     over,
 )
 from .search.shapes import ShapeCache
-from .search.sites import SPREAD_MARGIN, fit_to_toes, spread_to_count
+from .search.sites import fit_to_toes, holds_margin, spread_to_count
 from .search.toe import ToeRows
 from .search.trim import trim_moves
 
@@ -583,14 +583,13 @@ def optimize(
     if spread and any(isinstance(s, BeamSearch) for s in strategies_run):
         # A pattern denser than the target fills a tall mound's count with its top empty: spread.
         t0 = clock()
-        factor, held = spread_to_count(problem, ShapeCache(scene.block),
-                                       min(t0 + SPREAD_SHARE * time_limit, problem.deadline))
+        shapes = ShapeCache(scene.block)
+        factor, held = spread_to_count(problem, shapes, min(t0 + SPREAD_SHARE * time_limit, problem.deadline))
         if factor != 1.0:
             problem = replace(problem, lattice=problem.lattice.scaled(factor))
         width = problem.lattice.w
         # Wider columns only where the pattern was seen to hold the count with the spread's margin.
-        margin = held is not None and held >= math.ceil(problem.required * (1.0 + SPREAD_MARGIN))
-        problem = fit_to_toes(problem, ShapeCache(scene.block), problem.deadline, stretch=margin)
+        problem = fit_to_toes(problem, shapes, problem.deadline, stretch=holds_margin(problem, held))
         spread_phase = {"strategy": "spread", "attempt": 1, "seconds": clock() - t0, "factor": factor,
                         "holds": held, "blocks": 0, "porosity_percent": 100.0,
                         "across": problem.lattice.w / width, "anchor": problem.anchor}

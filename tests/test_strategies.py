@@ -651,6 +651,17 @@ def test_origins_from_the_anchor_are_ranked_first_among_those_whose_pass_places_
     assert all(o[0] != fitted.anchor for o in plain)
 
 
+def test_a_pattern_holds_the_margin_only_with_the_count_and_its_margin_over_it(tall):
+    """``holds_margin`` is the one test of the spread's margin, for its choice and for the fit to
+    the toes: a count not measured, or one block short of the margin, does not hold it."""
+    from optimizer.search import sites
+
+    p = problem(tall)
+    need = math.ceil(p.required * (1 + sites.SPREAD_MARGIN))
+    assert sites.holds_margin(p, need) and sites.holds_margin(p, need + 5)
+    assert not sites.holds_margin(p, need - 1) and not sites.holds_margin(p, None)
+
+
 def test_the_spread_choice_lays_no_pass_past_the_count_with_its_margin(tall, monkeypatch):
     """The choice asks only whether a spread holds the count with the margin: no quick pass lays
     more than that, and once one origin's pass holds it the other origins are not laid (every

@@ -20,6 +20,7 @@ from geometry.coverage import AIM_BARE_PERCENT
 from .build import Build, search_window
 from .problem import Problem
 from .shapes import ShapeCache
+from .toe import outermost
 
 
 def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator, start: Build,
@@ -129,8 +130,6 @@ def fit_to_toes(problem: Problem, shapes: ShapeCache, stop: float, stretch: bool
     of 60 (stop 80). Unchanged where no such spacing is that near, or ``stop``
     (``problem.now()``) comes first.
     """
-    from .toe import outermost  # toe rows build on the sites; only this reaches back
-
     lat = problem.lattice
     scene = problem.scene
     shape = shapes.hung(lat.family_a, lat.yaw_a)
@@ -474,6 +473,12 @@ SPREADS = (1.02, 1.04, 1.06, 1.08, 1.10, 1.15, 1.20, 1.25, 1.30)
 SPREAD_ORIGINS = 4
 
 
+def holds_margin(problem: Problem, held: int | None) -> bool:
+    """Whether a pattern that ``spread_to_count`` saw hold ``held`` blocks holds the count with
+    ``SPREAD_MARGIN`` over it (None: not measured)."""
+    return held is not None and held >= problem.required * (1.0 + SPREAD_MARGIN)
+
+
 def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[float, int | None]:
     """How far to spread the pattern in plan so that the count fills the mound to its top.
 
@@ -524,7 +529,7 @@ def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[
         return most
 
     base = holds(1.0)
-    if base is None or base < need:
+    if not holds_margin(problem, base):
         return 1.0, base
     chosen, held = 1.0, base
     for factor in SPREADS:
@@ -539,7 +544,7 @@ def spread_to_count(problem: Problem, shapes: ShapeCache, stop: float) -> tuple[
             # its 6.7 s). Now the choice takes 3.0-3.5 s here, and the spread search reached
             # 269, standing, on every seed. Between the two machines is not measured.
             return 1.0, base
-        if n < need:
+        if not holds_margin(problem, n):
             break
         chosen, held = factor, n
     return chosen, held

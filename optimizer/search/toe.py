@@ -250,7 +250,7 @@ class ToeRows(Strategy):
 
 
 def outermost(problem: Problem, build: Build, shape: Shape, side: float, y: float
-               ) -> Candidate | None:
+              ) -> Candidate | None:
     """The block lowered at ``y`` as far out towards the ``side`` toe as it rests inside the zone."""
     h = problem.scene.block.height
     lo, hi = 0.0, search_window(problem.scene)[0][1]
