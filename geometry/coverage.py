@@ -112,17 +112,20 @@ def quick_tree(points: np.ndarray) -> cKDTree:
     return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
+def default_spacing(scene: Scene) -> float:
+    """The sampling cell of the design surface: H / ``CELLS_PER_H``, or wider where that would
+    give more than ``MAX_SAMPLES``. Tiny blocks on a big mound would need tens of millions of
+    samples (a 5 cm tetrapod on mini: 19 million, 16 s for one block)."""
+    prism = scene.design
+    run = math.hypot(prism.bottom_half_width - prism.top_half_width, prism.height)
+    area = (run * (1 if prism.wall_x is not None else 2) + 2 * prism.top_half_width) * prism.length
+    return max(scene.block.height / CELLS_PER_H, math.sqrt(area / MAX_SAMPLES))
+
+
 def surface_samples(scene: Scene, spacing: float | None = None) -> SurfaceSamples:
     """Cell-centred samples of the design prism's slopes and crest (ends, base and a wall left out)."""
     prism = scene.design
-    h = scene.block.height
-    if spacing is None:
-        # Tiny blocks on a big mound would need tens of millions of samples (a 5 cm tetrapod on
-        # mini: 19 million, 16 s for one block): the spacing then grows to keep MAX_SAMPLES.
-        run = math.hypot(prism.bottom_half_width - prism.top_half_width, prism.height)
-        area = (run * (1 if prism.wall_x is not None else 2) + 2 * prism.top_half_width) * prism.length
-        spacing = max(h / CELLS_PER_H, math.sqrt(area / MAX_SAMPLES))
-    spacing = float(spacing)
+    spacing = float(default_spacing(scene) if spacing is None else spacing)
     ny = max(1, math.ceil(prism.length / spacing))
     ys = prism.y_start + (np.arange(ny) + 0.5) * prism.length / ny
     dy = prism.length / ny

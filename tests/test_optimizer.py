@@ -441,6 +441,27 @@ def test_origins_of_the_covering_attempt_are_ranked_by_coverage():
     assert rank_by_coverage(prob, shapes, Build(scene), origins, 4, -1.0) == origins
 
 
+def test_the_anchors_origins_along_the_crest_are_each_ranked_by_coverage():
+    """Where the anchor fixes x (``Problem.anchor``), each of its origins along the crest is one
+    of the ``n`` that :func:`rank_by_coverage` ranks; without an anchor only the best by volume
+    of that x is, and the others keep their order after the ranked ones."""
+    from dataclasses import replace
+
+    from optimizer.search.build import Build
+    from optimizer.search.shapes import ShapeCache
+    from optimizer.search.sites import rank_by_coverage
+
+    scene = load_scene("mini")
+    prob = problem(scene)
+    shapes = ShapeCache(scene.block)
+    origins = [(0.0, 0.5), (0.0, 1.0), (0.0, 1.5), (0.3, 0.5)]
+    plain = rank_by_coverage(prob, shapes, Build(scene), origins, 4, float("inf"))
+    assert set(plain[:2]) == {(0.0, 0.5), (0.3, 0.5)} and plain[2:] == [(0.0, 1.0), (0.0, 1.5)]
+    anchored = replace(prob, anchor=0.0)
+    ranked = rank_by_coverage(anchored, shapes, Build(scene), origins, 3, float("inf"))
+    assert set(ranked[:3]) == set(origins[:3]) and ranked[3:] == [(0.3, 0.5)]
+
+
 def test_a_later_pass_of_the_pattern_is_shifted_as_its_origin_says():
     """An origin ``(x, y, dx, dy, ...)`` lays the first pass from ``(x, y)`` and shifts each later
     pass by its own ``(dx, dy)`` from where it nests by default: by a period, the same sites;

@@ -651,6 +651,50 @@ def test_origins_from_the_anchor_are_ranked_first_among_those_whose_pass_places_
     assert all(o[0] != fitted.anchor for o in plain)
 
 
+def test_the_first_attempt_ranks_the_anchors_origins_by_coverage_from_the_passes_it_laid(tiny, monkeypatch):
+    """With an anchor, the beam's own ranking goes on to :func:`rank_by_coverage`, given the
+    quick passes laid from the anchor and a surface sampled ``ANCHOR_RANK_COARSER`` times
+    coarser, and searches from the origin it puts first; without an anchor it does not rank
+    by coverage."""
+    from geometry.coverage import default_spacing
+    from optimizer.search import beam, sites
+
+    calls = []
+
+    def spy(problem, shapes, start, origins, n, stop, laid=None, passes=None, spacing=None):
+        ranked = sites.rank_by_coverage(problem, shapes, start, origins, n, stop, laid, passes, spacing)
+        calls.append((dict(passes or {}), spacing, ranked))
+        return ranked
+
+    monkeypatch.setattr(beam, "rank_by_coverage", spy)
+    search = BeamSearch(restarts=1, origins=3)
+    search.run(problem(tiny), None, np.random.default_rng(3))
+    assert not calls
+    anchored = replace(problem(tiny), anchor=0.0)
+    phase = search.run(anchored, None, np.random.default_rng(3))
+    assert len(calls) == 1
+    passes, spacing, ranked = calls[0]
+    assert spacing == pytest.approx(beam.ANCHOR_RANK_COARSER * default_spacing(tiny))
+    assert passes and all(o[0] == 0.0 for o in passes)
+    assert phase.origin == ranked[0]
+
+
+def test_a_pass_already_laid_is_ranked_as_it_was_laid_not_laid_again():
+    """``rank_by_coverage`` takes the pass given for an origin as that origin's: an empty one
+    ranks it last, where its own pass would place the count."""
+    from optimizer.search import sites
+    from optimizer.search.shapes import ShapeCache
+
+    scene = load_scene("mini")
+    p, shapes = problem(scene), ShapeCache(scene.block)
+    origins = [(0.0, 0.5), (0.3, 0.5)]
+    laid = sites.pattern_pass(p, shapes, Build(scene), origins[0])
+    assert len(laid) == p.required
+    ranked = sites.rank_by_coverage(p, shapes, Build(scene), origins, 2, float("inf"),
+                                    passes={origins[0]: Build(scene)})
+    assert ranked == [origins[1], origins[0]]
+
+
 def test_a_pattern_holds_the_margin_only_with_the_count_and_its_margin_over_it(tall):
     """``holds_margin`` is the one test of the spread's margin, for its choice and for the fit to
     the toes: a count not measured, or one block short of the margin, does not hold it."""

@@ -161,13 +161,14 @@ class Problem:
         where no span is set. Not a deadline: the step still stops at ``deadline``."""
         return share * max(0.0, self.time_left() if self.span is None else self.span)
 
-    def coverage(self, placed: Placed, until: float | None = None) -> CoverageReport | None:
-        """The coverage of ``placed`` (:func:`geometry.coverage.coverage`), or None if it is not
-        measured by the deadline (``until`` where given: a measure after the settles that the
-        search's deadline leaves room for)."""
+    def coverage(self, placed: Placed, until: float | None = None,
+                 spacing: float | None = None) -> CoverageReport | None:
+        """The coverage of ``placed`` (:func:`geometry.coverage.coverage`, sampled every
+        ``spacing`` where given), or None if it is not measured by the deadline (``until`` where
+        given: a measure after the settles that the search's deadline leaves room for)."""
         try:
-            return coverage(self.scene, placed, deadline=self.deadline if until is None else until,
-                            clock=self.clock)
+            return coverage(self.scene, placed, spacing=spacing,
+                            deadline=self.deadline if until is None else until, clock=self.clock)
         except TimeUp:
             return None
 
