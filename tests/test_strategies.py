@@ -677,6 +677,11 @@ def test_the_first_attempt_ranks_the_anchors_origins_by_coverage_from_the_passes
     assert spacing == pytest.approx(beam.ANCHOR_RANK_COARSER * default_spacing(tiny))
     assert passes and all(o[0] == 0.0 for o in passes)
     assert phase.origin == ranked[0]
+    # The attempt that aims to cover ranks by coverage anyway: at the coverage's own cell, from
+    # the same kept passes.
+    search.covering().run(anchored, None, np.random.default_rng(3))
+    passes, spacing, _ = calls[1]
+    assert spacing is None and passes and all(o[0] == 0.0 for o in passes)
 
 
 def test_a_pass_already_laid_is_ranked_as_it_was_laid_not_laid_again():

@@ -344,10 +344,11 @@ class BeamSearch(Strategy):
             counts: dict[tuple[float, ...], int] = {}  # the quick passes' blocks, laid once
             # With an anchor the count and the anchor rank first, then the volume, which does not
             # see the crest: on big-shake the anchor's origin along it left 16.8 or 29-30 % bare
-            # (stop 80). Its origins are ranked again by coverage, from the passes kept, sampled
-            # ANCHOR_RANK_COARSER times coarser: the attempt needs its time for the count.
+            # (stop 80). Its origins are ranked again by coverage, sampled ANCHOR_RANK_COARSER
+            # times coarser: the attempt needs its time for the count. Either ranking by coverage
+            # takes the anchor's passes as the ranking above laid them.
             anchored = problem.anchor is not None and not self.cover_rank
-            passes: dict[tuple[float, ...], Build] | None = {} if anchored else None
+            passes: dict[tuple[float, ...], Build] | None = {} if problem.anchor is not None else None
             origins = rank_origins(problem, shapes, rng, start, self.origins, cap, self.scans, n,
                                    self._laid(start), counts, passes)
             origins = fitted_origins(problem, shapes, start, origins, problem.now() + FIT_SHARE * budget,

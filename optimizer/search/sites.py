@@ -64,7 +64,7 @@ def rank_origins(problem: Problem, shapes: ShapeCache, rng: np.random.Generator,
         whole = problem.now() <= stop
         if counts is not None and whole:
             counts[origin] = len(build)
-        if passes is not None and whole and origin[0] == problem.anchor:
+        if passes is not None and whole and from_anchor(problem, origin):
             passes[origin] = build
         if not scored or whole:
             first = anchored_first(problem, build, origin)
@@ -103,6 +103,12 @@ def anchored_origins(problem: Problem) -> list[tuple[float, float]]:
     return [(problem.anchor, i / ANCHORED * problem.lattice.p) for i in range(ANCHORED)]
 
 
+def from_anchor(problem: Problem, origin: tuple[float, ...]) -> bool:
+    """Whether ``origin`` is one of the anchor's: its x is the anchor (``Problem.anchor``), as the
+    scans along the crest keep it exactly."""
+    return problem.anchor is not None and origin[0] == problem.anchor
+
+
 def anchored_first(problem: Problem, build: Build, origin: tuple[float, float]) -> tuple[int, ...]:
     """The first keys of an origin's rank where the problem has an anchor: the pass that places
     more of the count first, then an origin from the anchor; none where it has no anchor.
@@ -113,7 +119,7 @@ def anchored_first(problem: Problem, build: Build, origin: tuple[float, float]) 
     """
     if problem.anchor is None:
         return ()
-    return -min(len(build), problem.required), int(origin[0] != problem.anchor)
+    return -min(len(build), problem.required), int(not from_anchor(problem, origin))
 
 
 def fit_to_toes(problem: Problem, shapes: ShapeCache, stop: float, stretch: bool = True) -> Problem:
@@ -179,7 +185,7 @@ def rank_by_coverage(problem: Problem, shapes: ShapeCache, start: Build, origins
     for i, origin in enumerate(origins):  # an origin may go on with its later passes' shifts
         x = round(origin[0], 3)
         # The anchor fixes x: its origins differ along the crest, each a candidate of its own.
-        key = (x, round(origin[1], 3)) if problem.anchor is not None and origin[0] == problem.anchor else (x,)
+        key = (x, round(origin[1], 3)) if from_anchor(problem, origin) else (x,)
         firsts.setdefault(key, i)
     chosen = sorted(firsts.values())[:n]
     scored = []
